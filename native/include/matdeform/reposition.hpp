@@ -1,0 +1,46 @@
+// Poisson vertex repositioning under shear stiffness (Popa et al. 2006, Eq. 3-4).
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "matdeform/types.hpp"
+
+namespace matdeform {
+
+// Minimises sum_i psi_i |Vt_i V_i^-1 - T_i|_F^2 over new positions, with Vt_i, V_i the
+// deformed/rest frames including each face's fourth vertex (frames.hpp).
+//
+// The fourth vertices appear only in their own face, so their block of the normal equations is
+// diagonal. We eliminate them exactly (Schur complement, face by face) and factor an n x n
+// system instead of (n+m) x (n+m); the solution for the original vertices is identical.
+//
+// Fixed vertices are removed from the unknowns. Defined behaviour:
+//  - degenerate faces (twice-area below 1e-12 of the longest edge squared) drop out of Eq. 3;
+//  - vertices in no usable face keep their rest position (or their fixed position);
+//  - a connected component with no fixed vertex is solved up to translation and then shifted so
+//    that the mean of its vertices equals their rest mean.
+// Factors once in the constructor; solve() only assembles the right-hand side and substitutes.
+class PoissonRepositioner {
+ public:
+  // vertices (n,3), faces (m,3), shear (m,) > 0, fixed: vertex indices (any order, unique).
+  PoissonRepositioner(const Vertices& vertices, const Faces& faces, const Eigen::VectorXd& shear,
+                      const std::vector<int>& fixed);
+  ~PoissonRepositioner();
+  PoissonRepositioner(const PoissonRepositioner&) = delete;
+  PoissonRepositioner& operator=(const PoissonRepositioner&) = delete;
+
+  // targets: m per-face 3x3 transforms T_i. fixed_positions: (|fixed|,3) in the order given to
+  // the constructor. Writes (n,3) positions into out.
+  void solve(const Matrix3Array& targets, const Vertices& fixed_positions, Vertices* out) const;
+
+  const std::vector<int>& fixed() const { return fixed_; }
+  int num_unknowns() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  std::vector<int> fixed_;
+};
+
+}  // namespace matdeform

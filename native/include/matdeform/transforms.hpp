@@ -1,0 +1,48 @@
+// Transformation algebra for blending (Alexa 2002; Popa et al. 2006 Eq. 2 and Appendix A).
+//
+// A linear map M with det M > 0 is split by polar decomposition into M = S * R, S symmetric
+// positive definite (stretch), R a rotation (the paper's T = S Q order). Its log is the pair
+// (log S, log R): log S is the real symmetric matrix log, log R the axis-angle vector (angle in
+// [0, pi]). Blending with weights w_a is
+//     exp(sum_a w_a log S_a) * exp(sum_a w_a log R_a).
+// For similarities (rotation times uniform scale) S and R commute and this equals Alexa's
+// exp(sum_a w_a log M_a) exactly; for general M it is the real, always-defined variant (a
+// generic M with det > 0 can have no real matrix log at all, e.g. diag(-1,-2,1)).
+#pragma once
+
+#include <Eigen/Core>
+
+#include "matdeform/types.hpp"
+
+namespace matdeform {
+
+struct TransformLog {
+  Eigen::Matrix3d log_stretch = Eigen::Matrix3d::Zero();  // symmetric
+  Eigen::Vector3d rotation = Eigen::Vector3d::Zero();     // axis * angle, angle in [0, pi]
+  bool similarity = true;  // log_stretch is a multiple of the identity
+};
+
+// Axis-angle vector of rotation R (orthonormalised first). Never NaN, also at angle pi.
+Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R);
+// Rodrigues formula, exact also for tiny angles.
+Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega);
+
+// M = S * R with S symmetric positive definite, R proper rotation. Throws
+// std::invalid_argument unless det M > 0 and M is finite.
+void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix3d* R);
+
+// Log of a symmetric positive definite matrix and exp of a symmetric one (eigen-decomposition).
+Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S);
+Eigen::Matrix3d sym_exp(const Eigen::Matrix3d& L);
+
+TransformLog transform_log(const Eigen::Matrix3d& M);
+Eigen::Matrix3d transform_exp(const TransformLog& L);
+
+// Blend of anchor logs with weights (k,), the exp of the weighted log sum.
+Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* weights);
+
+// Blends for all faces: weights is (m,k), output m matrices. Parallel over faces.
+void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights,
+               Matrix3Array* out);
+
+}  // namespace matdeform

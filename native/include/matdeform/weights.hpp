@@ -1,0 +1,22 @@
+// Harmonic blending weights under bending stiffness (Popa et al. 2006, Eq. 1).
+#pragma once
+
+#include "matdeform/types.hpp"
+
+namespace matdeform {
+
+// Minimises sum_e phi_e |w_f - w_g|^2 over dual edges e = (f, g), with the faces of anchor a
+// fixed to the unit vector e_a. Returns W (m,k).
+//  - pairs: (E,2) dual edges, phi: (E,) bending stiffness > 0.
+//  - anchors: k non-empty, pairwise disjoint lists of face indices.
+// Faces whose face-graph component holds no anchor get an all-zero row (identity transform);
+// every other row is a convex combination: entries in [0,1] summing to 1 (maximum principle).
+// One sparse Cholesky factorisation, all k right-hand sides in one solve.
+RowMatrix harmonic_weights(int num_faces, const IndexPairs& pairs, const Eigen::VectorXd& phi,
+                           const AnchorList& anchors);
+
+// Throws std::invalid_argument unless every anchor is non-empty, in range and no face belongs to
+// two anchors.
+void validate_anchors(int num_faces, const AnchorList& anchors);
+
+}  // namespace matdeform
