@@ -34,12 +34,13 @@ def on_frame_change(scene, depsgraph=None):
 
 @persistent
 def on_load(_filepath=None, *_args):
-    # pointers from the previous file are meaningless now; solvers rebuild lazily on first use
-    # (only if the saved fingerprints still match), here eagerly for the active scene
+    # Pointers from the previous file are meaningless now. Rebuild solvers (only if the saved
+    # fingerprints still match) but do not deform yet: world matrices are not evaluated during
+    # load_post, the first depsgraph update after loading does that.
     session.clear_cache()
     scene = bpy.context.scene
     if scene is not None:
-        _run(scene, None)
+        session.prepare_scene(scene)
 
 
 _HANDLERS = (

@@ -414,8 +414,20 @@ def live_update(scene, depsgraph=None) -> None:
             apply(obj, scene, depsgraph)
         except BindError as exc:
             _stale[key] = str(exc)
-        except Exception as exc:  # noqa: BLE001 - a handler must never take Blender down
+        except Exception as exc:  # a handler must never take Blender down
             _stale[key] = f"Update failed: {exc}"
+
+
+def prepare_scene(scene) -> None:
+    """Build the solvers of all bound objects (after loading a file), recording stale ones."""
+    for obj in scene.objects:
+        if obj.type == "MESH" and settings(obj).bound:
+            try:
+                entry_for(obj, scene)
+            except BindError:
+                pass  # reason is kept in _stale and shown in the panel
+            except Exception as exc:  # never break file loading
+                _stale[obj.as_pointer()] = f"Rebuild failed: {exc}"
 
 
 def bake(obj, scene, frames, progress=None) -> list[str]:
