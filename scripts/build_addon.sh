@@ -79,7 +79,8 @@ EXT_CLI=()
 if [[ -n "${BLENDER42:-}" ]]; then  # e.g. BLENDER42=/opt/blender-4.5/blender
   EXT_CLI=("$BLENDER42" --command extension)
 else
-  CLI="$("$PY" -c 'import bpy, pathlib; p = pathlib.Path(bpy.__file__).parent; print(next(p.glob("*/scripts/addons_core/bl_pkg/cli/blender_ext.py"), ""))' 2>/dev/null || true)"
+  CLI="$("$PY" -c 'import bpy, os; print(os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py"))' 2>/dev/null | tail -n1 || true)"
+  [[ -f "$CLI" ]] || CLI=""
   if [[ -n "$CLI" ]]; then EXT_CLI=("$PY" "$CLI"); fi
 fi
 if [[ ${#EXT_CLI[@]} -gt 0 ]]; then
