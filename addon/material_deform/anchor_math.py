@@ -22,8 +22,24 @@ def anchor_transforms(m_obj, now, bind) -> np.ndarray:
     m_obj = np.asarray(m_obj, dtype=np.float64)
     now = np.asarray(now, dtype=np.float64).reshape(-1, 4, 4)
     bind = np.asarray(bind, dtype=np.float64).reshape(-1, 4, 4)
-    inv_obj = np.linalg.inv(m_obj)
-    return inv_obj @ now @ np.linalg.inv(bind) @ m_obj
+    return affine_inverse(m_obj) @ now @ affine_inverse(bind) @ m_obj
+
+
+def affine_inverse(m) -> np.ndarray:
+    """Inverse of affine 4x4 matrices (bottom row 0 0 0 1) via the 3x3 adjugate: no LAPACK call
+    on the live-update path."""
+    m = np.asarray(m, dtype=np.float64)
+    a = m[..., :3, :3]
+    c0 = np.cross(a[..., 1, :], a[..., 2, :])
+    c1 = np.cross(a[..., 2, :], a[..., 0, :])
+    c2 = np.cross(a[..., 0, :], a[..., 1, :])
+    det = np.einsum("...i,...i->...", a[..., 0, :], c0)
+    inv3 = np.stack([c0, c1, c2], axis=-1) / det[..., None, None]
+    out = np.zeros_like(m)
+    out[..., :3, :3] = inv3
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", inv3, m[..., :3, 3])
+    out[..., 3, 3] = 1.0
+    return out
 
 
 def anchor_polygons(vertex_in_group, loop_vert, loop_poly, n_polys: int) -> np.ndarray:

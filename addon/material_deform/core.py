@@ -3,6 +3,7 @@ otherwise whatever is importable (Blender extension wheels, a dev install)."""
 
 from __future__ import annotations
 
+import ctypes
 import os
 import sys
 
@@ -15,13 +16,35 @@ def load():
     global _error
     if os.path.isdir(_VENDOR) and _VENDOR not in sys.path:
         sys.path.insert(0, _VENDOR)
+    # The core's OpenMP regions fight Blender's own worker threads: on a 2-core machine one
+    # solve was ~8x slower with 2 OpenMP threads than with 1 (bench/bench_blender.py). Default
+    # to 1 thread unless the user asked for more (MATDEFORM_THREADS or OMP_NUM_THREADS).
+    threads = os.environ.get("MATDEFORM_THREADS") or os.environ.get("OMP_NUM_THREADS") or "1"
+    os.environ.setdefault("OMP_NUM_THREADS", threads)
     try:
         import matdeform
     except ImportError as exc:
         _error = f"matdeform core not available ({exc}); reinstall the add-on zip"
         raise ImportError(_error) from exc
     _error = None
+    _set_openmp_threads(threads)
     return matdeform
+
+
+_threads_set = False
+
+
+def _set_openmp_threads(threads: str) -> None:
+    """OMP_NUM_THREADS is only read when libgomp is first loaded, which may have happened
+    before us; omp_set_num_threads covers that case for the (main) thread that solves."""
+    global _threads_set
+    if _threads_set:
+        return
+    _threads_set = True
+    try:
+        ctypes.CDLL("libgomp.so.1").omp_set_num_threads(int(threads))
+    except (OSError, AttributeError, ValueError):
+        pass  # no GNU OpenMP runtime (other platform or build): nothing to limit
 
 
 def available() -> bool:

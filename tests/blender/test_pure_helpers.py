@@ -54,3 +54,16 @@ def test_components_and_compaction():
     assert len(np.unique(lab)) == 3 and lab[0] == lab[1] and lab[3] == lab[4]
     used, t = am.compact(np.array([[0, 2, 3]]), 5)
     assert used.tolist() == [0, 2, 3] and t.tolist() == [[0, 1, 2]]
+
+
+def test_affine_inverse_matches_numpy():
+    rng = np.random.default_rng(2)
+    m = np.zeros((5, 4, 4))
+    m[:, :3, :] = rng.normal(size=(5, 3, 4))
+    m[:, 3, 3] = 1
+    np.testing.assert_allclose(am.affine_inverse(m), np.linalg.inv(m), atol=1e-10)
+    np.testing.assert_allclose(
+        am.anchor_transforms(m[0], m[1:3], m[3:5])[1],
+        np.linalg.inv(m[0]) @ m[2] @ np.linalg.inv(m[4]) @ m[0],
+        atol=1e-9,
+    )
