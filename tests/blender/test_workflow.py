@@ -288,3 +288,22 @@ def test_animated_empty_drives_frame_change_and_bake():
     assert not obj.material_deform.live and keys["Material Deform"].value == 0.0
     scene.frame_set(2)
     np.testing.assert_allclose(evaluated(obj), at2, atol=1e-5)
+
+
+def test_anchor_list_operators_select_remove_assign():
+    obj = tube()
+    top, _bottom = two_end_anchors(obj)
+    s = obj.material_deform
+    s.active_anchor_index = 0
+    assert bpy.ops.mesh.material_deform_select_anchor() == {"FINISHED"}
+    sel = [p.index for p in obj.data.polygons if p.select]
+    assert sel == [1]  # exactly the top n-gon cap
+    other = bpy.data.objects.new("Other Empty", None)
+    bpy.context.scene.collection.objects.link(other)
+    assert bpy.ops.mesh.material_deform_assign_empty(empty="Other Empty") == {"FINISHED"}
+    assert s.anchors[0].empty == other
+    with pytest.raises(RuntimeError, match="not an Empty"):
+        bpy.ops.mesh.material_deform_assign_empty(empty="Bar")
+    assert bpy.ops.mesh.material_deform_remove_anchor() == {"FINISHED"}
+    assert len(s.anchors) == 1 and s.anchors[0].name == "Anchor.001"
+    assert "Anchor" in obj.vertex_groups  # the group is kept
