@@ -82,20 +82,13 @@ def ring_polys(obj, sides, ring_rows):
 
 
 def setup_md(obj, sides, ring_rows):
+    from material_deform.bridge import select_polygons_edit
+
     bottom, top = ring_polys(obj, sides, ring_rows)
     activate(obj)
     for mask in (top, bottom):
-        me = obj.data
-        lv = np.empty(len(me.loops), np.int32)
-        me.loops.foreach_get("vertex_index", lv)
-        vs = np.zeros(len(me.vertices), bool)
-        vs[lv.reshape(-1, 4)[mask].ravel()] = True
-        ev = np.empty(len(me.edges) * 2, np.int32)
-        me.edges.foreach_get("vertices", ev)
-        me.vertices.foreach_set("select", vs)
-        me.edges.foreach_set("select", vs[ev.reshape(-1, 2)].all(axis=1))
-        me.polygons.foreach_set("select", mask)
         bpy.ops.object.mode_set(mode="EDIT")
+        select_polygons_edit(obj, mask)
         bpy.ops.mesh.material_deform_add_anchor()
         bpy.ops.object.mode_set(mode="OBJECT")
     t = time.perf_counter()

@@ -65,16 +65,12 @@ def activate(obj):
 
 
 def add_anchor(obj, pick):
+    from material_deform.bridge import select_polygons_edit
+
     activate(obj)
-    me = obj.data
-    me.vertices.foreach_set("select", [False] * len(me.vertices))
-    me.edges.foreach_set("select", [False] * len(me.edges))
-    for p in me.polygons:
-        p.select = bool(pick(p))
-        if p.select:
-            for i in p.vertices:
-                me.vertices[i].select = True
+    mask = [bool(pick(p)) for p in obj.data.polygons]
     bpy.ops.object.mode_set(mode="EDIT")
+    select_polygons_edit(obj, mask)
     assert bpy.ops.mesh.material_deform_add_anchor() == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
     return obj.material_deform.anchors[-1]

@@ -7,6 +7,7 @@ import contextlib
 import ctypes
 from dataclasses import dataclass
 
+import bmesh
 import bpy
 import numpy as np
 from mathutils import Matrix, Vector
@@ -254,20 +255,19 @@ def unique_group_name(obj, base) -> str:
     return name
 
 
-def select_polygons(mesh, mask) -> None:
-    """Select exactly the masked polygons (and their vertices/edges)."""
+def select_polygons_edit(obj, mask) -> None:
+    """Select exactly the masked polygons; the object must be in Edit Mode. Goes through
+    bmesh: writing edge selection through RNA segfaults Blender 5.0.1."""
     mask = np.asarray(mask, dtype=bool)
-    p = len(mesh.polygons)
-    lv = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
-    starts = _get(mesh.polygons, "loop_start", p, np.int32)
-    lp = loop_polygon_index(starts, _get(mesh.polygons, "loop_total", p, np.int32))
-    vsel = np.zeros(len(mesh.vertices), dtype=bool)
-    vsel[lv[mask[lp]]] = True
-    ev = _get(mesh.edges, "vertices", len(mesh.edges), np.int32, 2)
-    mesh.vertices.foreach_set("select", vsel)
-    mesh.edges.foreach_set("select", vsel[ev].all(axis=1))
-    mesh.polygons.foreach_set("select", mask)
-    mesh.update()
+    bm = bmesh.from_edit_mesh(obj.data)
+    for seq in (bm.verts, bm.edges, bm.faces):
+        for elem in seq:
+            elem.select = False
+    bm.faces.ensure_lookup_table()
+    for i in np.flatnonzero(mask):
+        bm.faces[int(i)].select_set(True)
+    bm.select_flush_mode()
+    bmesh.update_edit_mesh(obj.data)
 
 
 def create_empty(context, name, location, normal, size, near_obj):

@@ -6,7 +6,9 @@ import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
 from . import bridge, session
+from .anchor_math import anchor_polygons
 from .session import BindError
+from .stiffness_map import loop_polygon_index
 
 
 def _mesh_object(context):
@@ -152,17 +154,17 @@ class MESH_OT_material_deform_select_anchor(_MeshOperator, bpy.types.Operator):
             self.report({"ERROR"}, "No active anchor")
             return {"CANCELLED"}
         anc = s.anchors[s.active_anchor_index]
-        with bridge.object_mode(context, obj):
-            w = bridge.vertex_group_weights(obj, [anc.vertex_group]).get(anc.vertex_group)
-            if w is None:
-                self.report({"ERROR"}, f"Vertex group '{anc.vertex_group}' not found")
-                return {"CANCELLED"}
-            a = bridge.mesh_arrays(obj.data)
-            from .anchor_math import anchor_polygons
-            from .stiffness_map import loop_polygon_index
-
-            lp = loop_polygon_index(a.loop_start, a.loop_total)
-            bridge.select_polygons(obj.data, anchor_polygons(w >= 0, a.loop_vert, lp, a.n_polys))
+        if obj.mode == "EDIT":
+            bpy.ops.object.mode_set(mode="OBJECT")  # sync groups before reading them
+        w = bridge.vertex_group_weights(obj, [anc.vertex_group]).get(anc.vertex_group)
+        if w is None:
+            self.report({"ERROR"}, f"Vertex group '{anc.vertex_group}' not found")
+            return {"CANCELLED"}
+        a = bridge.mesh_arrays(obj.data)
+        lp = loop_polygon_index(a.loop_start, a.loop_total)
+        mask = anchor_polygons(w >= 0, a.loop_vert, lp, a.n_polys)
+        bpy.ops.object.mode_set(mode="EDIT")
+        bridge.select_polygons_edit(obj, mask)
         return {"FINISHED"}
 
 

@@ -2,6 +2,7 @@
 
 import math
 
+import bmesh
 import bpy
 import numpy as np
 
@@ -46,23 +47,26 @@ def activate(obj):
 
 
 def select_faces(obj, pred):
-    """Select exactly the polygons for which pred(polygon) is true (object mode)."""
-    me = obj.data
-    sel = [bool(pred(p)) for p in me.polygons]
-    vs = np.zeros(len(me.vertices), bool)
-    for p, s in zip(me.polygons, sel, strict=True):
-        if s:
-            vs[list(p.vertices)] = True
-    me.vertices.foreach_set("select", vs)
-    ev = np.array([e.vertices[:] for e in me.edges])
-    me.edges.foreach_set("select", vs[ev].all(axis=1))
-    me.polygons.foreach_set("select", sel)
+    """Select exactly the polygons for which pred(polygon) is true; leaves Edit Mode on.
+    (bmesh, because writing edge selection through RNA segfaults Blender 5.0.1.)"""
+    activate(obj)
+    if obj.mode != "OBJECT":
+        bpy.ops.object.mode_set(mode="OBJECT")
+    mask = [bool(pred(p)) for p in obj.data.polygons]
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(obj.data)
+    for seq in (bm.verts, bm.edges, bm.faces):
+        for elem in seq:
+            elem.select = False
+    bm.faces.ensure_lookup_table()
+    for i, m in enumerate(mask):
+        if m:
+            bm.faces[i].select_set(True)
+    bmesh.update_edit_mesh(obj.data)
 
 
 def add_anchor(obj, pred, mode="POSITION"):
-    activate(obj)
     select_faces(obj, pred)
-    bpy.ops.object.mode_set(mode="EDIT")
     assert bpy.ops.mesh.material_deform_add_anchor(mode=mode) == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
     return obj.material_deform.anchors[-1]

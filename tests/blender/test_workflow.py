@@ -296,6 +296,8 @@ def test_anchor_list_operators_select_remove_assign():
     s = obj.material_deform
     s.active_anchor_index = 0
     assert bpy.ops.mesh.material_deform_select_anchor() == {"FINISHED"}
+    assert obj.mode == "EDIT"
+    bpy.ops.object.mode_set(mode="OBJECT")
     sel = [p.index for p in obj.data.polygons if p.select]
     assert sel == [1]  # exactly the top n-gon cap
     other = bpy.data.objects.new("Other Empty", None)
