@@ -2,7 +2,7 @@
 (anchors moved by Hook modifiers) on the same tube mesh with the same anchor rings.
 
     MD_SYS_PATH=build/addon/legacy/material_deform/_vendor \\
-        .venv/bin/python bench/bench_blender.py [--sizes 10000 50000 200000] [--out FILE]
+        .venv-bpy/bin/python bench/bench_blender.py [--sizes 10000 50000 200000] [--out FILE]
     (or: blender -b --factory-startup --python bench/bench_blender.py -- [args])
 
 Timed per update (medians):

