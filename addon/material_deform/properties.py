@@ -14,6 +14,13 @@ from bpy.props import (
     StringProperty,
 )
 
+
+def _anchor_changed(self, _context):
+    from . import session  # late: session imports the core lazily, keep registration light
+
+    session.mark_stale(self.id_data, "Anchors changed since bind - click Bind again")
+
+
 IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
 
 
@@ -24,10 +31,16 @@ def _is_empty(_self, obj):
 class MaterialDeformAnchor(bpy.types.PropertyGroup):
     name: StringProperty(name="Name", default="Anchor")
     vertex_group: StringProperty(
-        name="Vertex Group", description="Anchor faces: polygons whose vertices are all in it"
+        name="Vertex Group",
+        description="Anchor faces: polygons whose vertices are all in it",
+        update=_anchor_changed,
     )
     empty: PointerProperty(
-        name="Empty", type=bpy.types.Object, poll=_is_empty, description="Controller of the anchor"
+        name="Empty",
+        type=bpy.types.Object,
+        poll=_is_empty,
+        description="Controller of the anchor",
+        update=_anchor_changed,
     )
     mode: EnumProperty(
         name="Mode",
@@ -41,6 +54,7 @@ class MaterialDeformAnchor(bpy.types.PropertyGroup):
             ),
         ),
         default="POSITION",
+        update=_anchor_changed,
     )
     # world matrix of the Empty at bind time, row-major
     bind_matrix: FloatVectorProperty(size=16, default=IDENTITY16, options={"HIDDEN"})
@@ -73,6 +87,7 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
         name="Live", default=True, description="Update the deformation when anchor Empties move"
     )
     created_basis: BoolProperty(default=False, options={"HIDDEN"})
+    rebind_reason: StringProperty(options={"HIDDEN"})
     fp_topology: StringProperty(options={"HIDDEN"})
     fp_anchors: StringProperty(options={"HIDDEN"})
     fp_stiffness: StringProperty(options={"HIDDEN"})

@@ -62,6 +62,16 @@ def clear_cache() -> None:
     _last_mode.clear()
 
 
+def mark_stale(obj, reason: str) -> None:
+    """Called when a bound setting changes in the UI: stop updating until the next Bind."""
+    s = settings(obj) if bridge.is_mesh(obj) else None
+    if s is not None and s.bound:
+        s.rebind_reason = reason  # saved, so it also holds after reloading the file
+        key = obj.as_pointer()
+        _stale[key] = reason
+        _cache.pop(key, None)
+
+
 # --- stiffness ------------------------------------------------------------------------------
 
 
@@ -269,6 +279,7 @@ def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> En
     # a fresh bind starts at the rest shape exactly
     bridge.write_key(obj, kb, bridge.rest_positions_f32(obj.data))
     s.bound = True
+    s.rebind_reason = ""
     key = obj.as_pointer()
     _cache[key] = entry
     _stale.pop(key, None)
@@ -282,6 +293,7 @@ def unbind(obj) -> None:
     s = settings(obj)
     bridge.remove_output(obj, remove_basis=s.created_basis)
     s.bound = False
+    s.rebind_reason = ""
     s.created_basis = False
     s.fp_topology = s.fp_anchors = s.fp_stiffness = ""
     key = obj.as_pointer()
@@ -296,6 +308,10 @@ def entry_for(obj, scene) -> Entry:
     key = obj.as_pointer()
     if not s.bound:
         raise BindError("Not bound: click Bind")
+    if s.rebind_reason:
+        _stale[key] = s.rebind_reason
+        _cache.pop(key, None)
+        raise BindError(s.rebind_reason)
     entry = _cache.get(key)
     if (
         entry is not None
@@ -323,8 +339,12 @@ def entry_for(obj, scene) -> Entry:
 def full_check(obj, scene) -> str:
     """Re-read mesh, anchors and stiffness and compare to the bind; returns '' if unchanged."""
     key = obj.as_pointer()
-    if not settings(obj).bound:
+    s = settings(obj)
+    if not s.bound:
         return ""
+    if s.rebind_reason:
+        _stale[key] = s.rebind_reason
+        return s.rebind_reason
     try:
         inp = gather(obj, scene)
     except BindError as exc:

@@ -185,3 +185,20 @@ def test_loose_vertices_are_ignored():
     update()
     np.testing.assert_array_equal(output(obj)[-1], [5, 5, 5])
     assert np.abs(output(obj)[:-1, 0] - rest(obj)[:-1, 0]).max() > 0.9
+
+
+def test_changing_anchor_mode_or_empty_after_bind_needs_rebind():
+    from material_deform import session
+
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    top.mode = "ROTATION"
+    assert "Anchors changed" in session.stale_reason(obj)
+    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert session.stale_reason(obj) == ""
+    other = bpy.data.objects.new("E2", None)
+    bpy.context.scene.collection.objects.link(other)
+    top.empty = other
+    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
