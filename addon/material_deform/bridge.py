@@ -288,9 +288,14 @@ def matrix_np(mat) -> np.ndarray:
     return np.array(mat, dtype=np.float64)
 
 
-def world_matrix(obj, depsgraph=None) -> np.ndarray:
+def world_matrix(obj, depsgraph=None):
+    """World matrix, evaluated in ``depsgraph`` if given. None if the object is not part of that
+    depsgraph (e.g. an Empty disabled for renders, in a render's depsgraph)."""
     if depsgraph is not None:
-        obj = obj.evaluated_get(depsgraph)
+        ev = obj.evaluated_get(depsgraph)
+        if not ev.is_evaluated:
+            return None
+        obj = ev
     return np.array(obj.matrix_world, dtype=np.float64)
 
 

@@ -374,7 +374,7 @@ def _matrix_key(obj, depsgraph, scene=None) -> bytes:
     for anc in settings(obj).anchors:
         if anc.empty is not None:
             mats.append(bridge.world_matrix(anc.empty, depsgraph))
-    return np.stack(mats).tobytes()
+    return b"".join(b"-" if m is None else m.tobytes() for m in mats)
 
 
 def compute(obj, scene, depsgraph=None) -> np.ndarray:
@@ -388,9 +388,19 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
     ancs = _anchor_empties(obj, scene)
     if len(ancs) != entry.n_anchors:
         raise BindError("Anchors changed since bind - click Bind again")
-    now = np.stack([bridge.world_matrix(a.empty, depsgraph) for a in ancs])
+    mats = [bridge.world_matrix(a.empty, depsgraph) for a in ancs]
+    for a, m in zip(ancs, mats, strict=True):
+        if m is None:
+            raise BindError(
+                f"Anchor '{a.name}': Empty '{a.empty.name}' is not evaluated here "
+                "(disabled in renders?)"
+            )
+    m_obj = bridge.world_matrix(obj, depsgraph)
+    if m_obj is None:
+        raise BindError("Object is not evaluated here")
+    now = np.stack(mats)
     bind_m = np.array([tuple(a.bind_matrix) for a in ancs], dtype=np.float64).reshape(-1, 4, 4)
-    t = am.anchor_transforms(bridge.world_matrix(obj, depsgraph), now, bind_m)
+    t = am.anchor_transforms(m_obj, now, bind_m)
     x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
     if entry.used is None:
         return x
@@ -432,10 +442,11 @@ def live_update(scene, depsgraph=None) -> None:
             continue
         try:
             apply(obj, scene, depsgraph)
-        except BindError as exc:
-            _stale[key] = str(exc)
         except Exception as exc:  # a handler must never take Blender down
-            _stale[key] = f"Update failed: {exc}"
+            msg = str(exc) if isinstance(exc, BindError) else f"Update failed: {exc}"
+            if _stale.get(key) != msg:
+                print(f"Material Deform: '{obj.name}' not updated: {msg}")  # background runs
+            _stale[key] = msg
 
 
 def prepare_scene(scene) -> None:
