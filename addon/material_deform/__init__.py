@@ -2,9 +2,10 @@
 
 Paint stiffness, add anchors driven by Empties, Bind, then move the Empties: the result goes to
 a "Material Deform" shape key over the untouched rest shape.
-"""
 
-from . import handlers, operators, properties, ui
+The bpy modules are imported in register(), so the pure helpers (``stiffness_map``,
+``anchor_math``) stay importable and testable without Blender.
+"""
 
 bl_info = {
     "name": "Material Deform",
@@ -16,14 +17,18 @@ bl_info = {
     "category": "Mesh",
 }
 
-_modules = (properties, operators, ui, handlers)
+
+def _modules():
+    from . import handlers, operators, properties, ui
+
+    return (properties, operators, ui, handlers)
 
 
 def register():
-    for m in _modules:
+    for m in _modules():
         m.register()
 
 
 def unregister():
-    for m in reversed(_modules):
+    for m in reversed(_modules()):
         m.unregister()
