@@ -115,16 +115,48 @@ void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, 
       P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
       P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
     }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (m > 20000)
     for (Eigen::Index i = 0; i < m; ++i) {
       const Eigen::Vector4d s = P * weights.row(i).transpose();
       (*out)[static_cast<size_t>(i)] = std::exp(s(3)) * rotation_exp(s.head<3>());
     }
     return;
   }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (m > 20000)
   for (Eigen::Index i = 0; i < m; ++i) {
     (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
+  }
+}
+
+void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                           const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                           Matrix3Array* out) {
+  const Eigen::Index m = wx.rows();
+  const Eigen::Index k = wx.cols();
+  if (static_cast<Eigen::Index>(logs.size()) != k || wy.rows() != m || wz.rows() != m ||
+      wy.cols() != k || wz.cols() != k) {
+    throw std::invalid_argument("blend_all_anisotropic: weight shapes do not match");
+  }
+  out->resize(static_cast<size_t>(m));
+  // Rotation logs in the axes' frame: row c holds every anchor's component along axis c.
+  Eigen::Matrix<double, 3, Eigen::Dynamic> C(3, k);
+  bool all_similar = true;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    C.col(a) = axes.transpose() * logs[static_cast<size_t>(a)].rotation;
+    all_similar = all_similar && logs[static_cast<size_t>(a)].similarity;
+  }
+#pragma omp parallel for schedule(static) if (m > 20000)
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const Eigen::Vector3d local(wx.row(i).dot(C.row(0)), wy.row(i).dot(C.row(1)),
+                                wz.row(i).dot(C.row(2)));
+    TransformLog sum;
+    sum.rotation = axes * local;
+    sum.similarity = all_similar;
+    for (Eigen::Index a = 0; a < k; ++a) {
+      const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
+      sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
+    }
+    (*out)[static_cast<size_t>(i)] = transform_exp(sum);
   }
 }
 
