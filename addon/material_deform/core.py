@@ -27,29 +27,28 @@ def load():
         _error = f"matdeform core not available ({exc}); reinstall the add-on zip"
         raise ImportError(_error) from exc
     _error = None
-    _set_openmp_threads(threads)
+    _set_threads(matdeform, threads)
     return matdeform
 
 
 _threads_set = False
 
 
-def _set_openmp_threads(threads: str) -> None:
-    """OMP_NUM_THREADS is only read when libgomp is first loaded, which may have happened
-    before us; omp_set_num_threads covers that case for the (main) thread that solves."""
+def _set_threads(matdeform, threads: str) -> None:
+    """OMP_NUM_THREADS is only read when the OpenMP runtime is first loaded, which may have
+    happened before us, so also set the count through the core (or libgomp directly)."""
     global _threads_set
     if _threads_set:
         return
     _threads_set = True
     try:
-        ctypes.CDLL("libgomp.so.1").omp_set_num_threads(int(threads))
-    except (OSError, AttributeError, ValueError):
-        pass  # no GNU OpenMP runtime (other platform or build): nothing to limit
-
-
-def available() -> bool:
+        n = max(1, int(threads))
+    except ValueError:
+        n = 1
+    if hasattr(matdeform, "set_num_threads"):
+        matdeform.set_num_threads(n)
+        return
     try:
-        load()
-    except ImportError:
-        return False
-    return True
+        ctypes.CDLL("libgomp.so.1").omp_set_num_threads(n)
+    except (OSError, AttributeError):
+        pass  # no GNU OpenMP runtime (other platform or build): nothing to limit
