@@ -1,0 +1,260 @@
+#include "matdeform/reposition.hpp"
+
+#include <Eigen/Dense>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <cmath>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include "matdeform/frames.hpp"
+#include "sparse_cholesky.hpp"
+
+namespace matdeform {
+
+namespace {
+using Col3 = Eigen::Matrix<double, Eigen::Dynamic, 3>;  // column-major (rows,3) for CHOLMOD
+
+int find_root(std::vector<int>& parent, int x) {
+  while (parent[x] != x) x = parent[x] = parent[parent[x]];
+  return x;
+}
+}  // namespace
+
+struct PoissonRepositioner::Impl {
+  int n = 0, m = 0;
+  Vertices rest;
+  Faces faces;
+  std::vector<char> usable;
+  // Per usable face: psi * (G_v - m_v4 g_4^T / mu), the condensed right-hand-side operator.
+  // Row l is the contribution of local vertex l: rhs_l = H.row(l) * T^T.
+  std::vector<Eigen::Matrix3d> H;
+  std::vector<int> free_index;   // n; -1 for fixed vertices
+  std::vector<int> free_verts;   // free vertex ids in unknown order
+  std::vector<int> fixed_all;    // user fixed, then loose vertices, then gauge vertices
+  int num_user_fixed = 0;
+  Eigen::SparseMatrix<double, Eigen::RowMajor> K_fp;  // free x fixed_all coupling
+  std::unique_ptr<SparseCholesky> chol;
+  std::vector<int> inc_offset, inc_slot;  // per free vertex: face*3+local slots (CSR)
+  // Components solved only up to translation: restore their rest vertex mean afterwards.
+  std::vector<int> gauge_comp_of;   // n; -1 when the vertex's component has a fixed vertex
+  std::vector<Eigen::Vector3d> gauge_rest_mean;
+  std::vector<double> gauge_count;
+
+  mutable std::vector<Eigen::Matrix3d> local;  // m
+  mutable Col3 rhs, sol, fixed_pos;
+};
+
+PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& faces,
+                                         const Eigen::VectorXd& shear,
+                                         const std::vector<int>& fixed)
+    : impl_(std::make_unique<Impl>()), fixed_(fixed) {
+  Impl& d = *impl_;
+  d.n = static_cast<int>(vertices.rows());
+  d.m = static_cast<int>(faces.rows());
+  d.rest = vertices;
+  d.faces = faces;
+  if (shear.size() != d.m) throw std::invalid_argument("shear: one value per face expected");
+
+  std::vector<char> is_fixed(d.n, 0);
+  for (int v : fixed) {
+    if (v < 0 || v >= d.n) {
+      throw std::invalid_argument("pinned vertex " + std::to_string(v) + " out of range");
+    }
+    if (is_fixed[v]) throw std::invalid_argument("pinned vertex " + std::to_string(v) + " repeated");
+    is_fixed[v] = 1;
+  }
+
+  // Local condensed matrices per face.
+  d.usable.assign(d.m, 0);
+  d.H.assign(d.m, Eigen::Matrix3d::Zero());
+  std::vector<Eigen::Matrix3d> Kloc(d.m, Eigen::Matrix3d::Zero());
+  for (int i = 0; i < d.m; ++i) {
+    const Eigen::Vector3d a = vertices.row(faces(i, 0)), b = vertices.row(faces(i, 1)),
+                          c = vertices.row(faces(i, 2));
+    const double longest2 =
+        std::max({(b - a).squaredNorm(), (c - b).squaredNorm(), (a - c).squaredNorm()});
+    const double dbl_area = (b - a).cross(c - a).norm();
+    // Needles and zero-area faces have no usable frame; their vertices are placed by neighbours.
+    if (!(longest2 > 0.0) || !(dbl_area > 1e-12 * longest2)) continue;
+    const Eigen::Matrix3d E = face_frame(a, b, c).inverse();
+    Eigen::Matrix<double, 4, 3> G;
+    G.row(0) = -(E.row(0) + E.row(1) + E.row(2));
+    G.row(1) = E.row(0);
+    G.row(2) = E.row(1);
+    G.row(3) = E.row(2);
+    const double psi = shear(i);
+    const Eigen::Matrix4d M = psi * G * G.transpose();
+    const double mu = M(3, 3);
+    const Eigen::Vector3d mv4 = M.block<3, 1>(0, 3);
+    Kloc[i] = M.topLeftCorner<3, 3>() - mv4 * mv4.transpose() / mu;
+    d.H[i] = psi * (G.topRows<3>() - mv4 * G.row(3) / mu);
+    d.usable[i] = 1;
+  }
+
+  // Components over usable faces; loose vertices (no usable face) keep their rest position.
+  std::vector<int> parent(d.n);
+  std::iota(parent.begin(), parent.end(), 0);
+  std::vector<char> touched(d.n, 0);
+  for (int i = 0; i < d.m; ++i) {
+    if (!d.usable[i]) continue;
+    for (int l = 0; l < 3; ++l) touched[faces(i, l)] = 1;
+    const int r0 = find_root(parent, faces(i, 0));
+    for (int l = 1; l < 3; ++l) {
+      const int r = find_root(parent, faces(i, l));
+      if (r != r0) parent[std::max(r, r0)] = std::min(r, r0);
+    }
+  }
+  std::vector<char> root_has_fixed(d.n, 0);
+  for (int v = 0; v < d.n; ++v) {
+    if (is_fixed[v]) root_has_fixed[find_root(parent, v)] = 1;
+  }
+
+  d.fixed_all = fixed;
+  d.num_user_fixed = static_cast<int>(fixed.size());
+  for (int v = 0; v < d.n; ++v) {
+    if (!is_fixed[v] && !touched[v]) {
+      is_fixed[v] = 1;
+      d.fixed_all.push_back(v);
+    }
+  }
+  d.gauge_comp_of.assign(d.n, -1);
+  std::vector<int> root_gauge(d.n, -1);
+  for (int v = 0; v < d.n; ++v) {
+    if (!touched[v]) continue;
+    const int r = find_root(parent, v);
+    if (root_has_fixed[r]) continue;
+    if (root_gauge[r] < 0) {
+      // Lowest vertex of the component anchors its translation during the solve.
+      root_gauge[r] = static_cast<int>(d.gauge_rest_mean.size());
+      d.gauge_rest_mean.push_back(Eigen::Vector3d::Zero());
+      d.gauge_count.push_back(0.0);
+      is_fixed[v] = 1;
+      d.fixed_all.push_back(v);
+    }
+    const int g = root_gauge[r];
+    d.gauge_comp_of[v] = g;
+    d.gauge_rest_mean[g] += vertices.row(v).transpose();
+    d.gauge_count[g] += 1.0;
+  }
+  for (size_t g = 0; g < d.gauge_rest_mean.size(); ++g) d.gauge_rest_mean[g] /= d.gauge_count[g];
+
+  d.free_index.assign(d.n, -1);
+  for (int v = 0; v < d.n; ++v) {
+    if (!is_fixed[v]) {
+      d.free_index[v] = static_cast<int>(d.free_verts.size());
+      d.free_verts.push_back(v);
+    }
+  }
+  std::vector<int> fixed_slot(d.n, -1);
+  for (size_t s = 0; s < d.fixed_all.size(); ++s) fixed_slot[d.fixed_all[s]] = static_cast<int>(s);
+
+  const int nf = static_cast<int>(d.free_verts.size());
+  std::vector<Eigen::Triplet<double>> kff, kfp;
+  kff.reserve(static_cast<size_t>(6 * d.m));
+  for (int i = 0; i < d.m; ++i) {
+    if (!d.usable[i]) continue;
+    for (int r = 0; r < 3; ++r) {
+      const int fr = d.free_index[faces(i, r)];
+      if (fr < 0) continue;
+      for (int c = 0; c < 3; ++c) {
+        const int vc = faces(i, c);
+        const int fc = d.free_index[vc];
+        if (fc >= 0) {
+          if (fc <= fr) kff.emplace_back(fr, fc, Kloc[i](r, c));
+        } else {
+          kfp.emplace_back(fr, fixed_slot[vc], Kloc[i](r, c));
+        }
+      }
+    }
+  }
+  Eigen::SparseMatrix<double> Kff(nf, nf);
+  Kff.setFromTriplets(kff.begin(), kff.end());
+  d.K_fp.resize(nf, static_cast<Eigen::Index>(d.fixed_all.size()));
+  d.K_fp.setFromTriplets(kfp.begin(), kfp.end());
+  d.chol = std::make_unique<SparseCholesky>(Kff);
+
+  // Gather lists so right-hand-side assembly runs in parallel without write races.
+  d.inc_offset.assign(nf + 1, 0);
+  for (int i = 0; i < d.m; ++i) {
+    if (!d.usable[i]) continue;
+    for (int l = 0; l < 3; ++l) {
+      const int f = d.free_index[faces(i, l)];
+      if (f >= 0) ++d.inc_offset[f + 1];
+    }
+  }
+  for (int f = 0; f < nf; ++f) d.inc_offset[f + 1] += d.inc_offset[f];
+  d.inc_slot.resize(d.inc_offset[nf]);
+  std::vector<int> cursor(d.inc_offset.begin(), d.inc_offset.end() - 1);
+  for (int i = 0; i < d.m; ++i) {
+    if (!d.usable[i]) continue;
+    for (int l = 0; l < 3; ++l) {
+      const int f = d.free_index[faces(i, l)];
+      if (f >= 0) d.inc_slot[cursor[f]++] = 3 * i + l;
+    }
+  }
+
+  d.local.assign(d.m, Eigen::Matrix3d::Zero());
+  d.rhs.resize(nf, 3);
+  d.sol.resize(nf, 3);
+  d.fixed_pos.resize(static_cast<Eigen::Index>(d.fixed_all.size()), 3);
+  for (size_t s = d.num_user_fixed; s < d.fixed_all.size(); ++s) {
+    d.fixed_pos.row(static_cast<Eigen::Index>(s)) = vertices.row(d.fixed_all[s]);
+  }
+}
+
+PoissonRepositioner::~PoissonRepositioner() = default;
+
+int PoissonRepositioner::num_unknowns() const { return static_cast<int>(impl_->free_verts.size()); }
+
+void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fixed_positions,
+                                Vertices* out) const {
+  const Impl& d = *impl_;
+  if (static_cast<int>(targets.size()) != d.m) {
+    throw std::invalid_argument("one target transform per face expected");
+  }
+  if (fixed_positions.rows() != d.num_user_fixed) {
+    throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
+  }
+  const int nf = static_cast<int>(d.free_verts.size());
+
+#pragma omp parallel for schedule(static)
+  for (int i = 0; i < d.m; ++i) {
+    if (d.usable[i]) d.local[i].noalias() = d.H[i] * targets[i].transpose();
+  }
+#pragma omp parallel for schedule(static)
+  for (int f = 0; f < nf; ++f) {
+    Eigen::RowVector3d acc = Eigen::RowVector3d::Zero();
+    for (int s = d.inc_offset[f]; s < d.inc_offset[f + 1]; ++s) {
+      const int slot = d.inc_slot[s];
+      acc += d.local[slot / 3].row(slot % 3);
+    }
+    d.rhs.row(f) = acc;
+  }
+  if (d.num_user_fixed > 0) d.fixed_pos.topRows(d.num_user_fixed) = fixed_positions;
+  if (d.K_fp.cols() > 0) d.rhs.noalias() -= d.K_fp * d.fixed_pos;
+  d.chol->solve(d.rhs.data(), d.sol.data(), 3);
+
+  out->resize(d.n, 3);
+  for (int f = 0; f < nf; ++f) out->row(d.free_verts[f]) = d.sol.row(f);
+  for (size_t s = 0; s < d.fixed_all.size(); ++s) {
+    out->row(d.fixed_all[s]) = d.fixed_pos.row(static_cast<Eigen::Index>(s));
+  }
+  if (!d.gauge_rest_mean.empty()) {
+    std::vector<Eigen::Vector3d> mean(d.gauge_rest_mean.size(), Eigen::Vector3d::Zero());
+    for (int v = 0; v < d.n; ++v) {
+      const int g = d.gauge_comp_of[v];
+      if (g >= 0) mean[g] += out->row(v).transpose();
+    }
+    for (size_t g = 0; g < mean.size(); ++g) {
+      mean[g] = d.gauge_rest_mean[g] - mean[g] / d.gauge_count[g];
+    }
+    for (int v = 0; v < d.n; ++v) {
+      const int g = d.gauge_comp_of[v];
+      if (g >= 0) out->row(v) += mean[g].transpose();
+    }
+  }
+}
+
+}  // namespace matdeform

@@ -1,0 +1,132 @@
+#include "matdeform/transforms.hpp"
+
+#include <Eigen/Dense>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace matdeform {
+
+Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R) {
+  // Quaternion route: Eigen's matrix->quaternion conversion picks the largest diagonal pivot,
+  // so it stays accurate at angle pi where the trace formula's sin(theta) vanishes.
+  Eigen::Quaterniond q(R);
+  q.normalize();
+  if (q.w() < 0) q.coeffs() = -q.coeffs();  // angle in [0, pi]
+  const Eigen::Vector3d v = q.vec();
+  const double s = v.norm();
+  if (s < 1e-8) {
+    // theta/s -> 2/w as s -> 0 (w -> 1); the ratio's next term is O(s^2), below round-off.
+    return v * (2.0 / q.w());
+  }
+  const double theta = 2.0 * std::atan2(s, q.w());
+  return v * (theta / s);
+}
+
+Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega) {
+  const double theta = omega.norm();
+  if (theta < 1e-300) return Eigen::Matrix3d::Identity();
+  return Eigen::AngleAxisd(theta, omega / theta).toRotationMatrix();
+}
+
+void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
+  if (!M.allFinite()) throw std::invalid_argument("transform contains NaN or infinity");
+  const double det = M.determinant();
+  if (!(det > 0.0)) {
+    throw std::invalid_argument("transform must have a positive determinant (got " +
+                                std::to_string(det) + ")");
+  }
+  Eigen::JacobiSVD<Eigen::Matrix3d> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  const Eigen::Matrix3d& U = svd.matrixU();
+  const Eigen::Matrix3d& V = svd.matrixV();
+  // det M > 0 and singular values >= 0 imply det(U) det(V) = +1, so U V^T is proper.
+  *R = U * V.transpose();
+  *S = U * svd.singularValues().asDiagonal() * U.transpose();
+}
+
+Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (S + S.transpose()));
+  const Eigen::Vector3d lam = es.eigenvalues();
+  if (!(lam.minCoeff() > 0.0)) throw std::invalid_argument("stretch is not positive definite");
+  return es.eigenvectors() * lam.array().log().matrix().asDiagonal() *
+         es.eigenvectors().transpose();
+}
+
+Eigen::Matrix3d sym_exp(const Eigen::Matrix3d& L) {
+  Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (L + L.transpose()));
+  return es.eigenvectors() * es.eigenvalues().array().exp().matrix().asDiagonal() *
+         es.eigenvectors().transpose();
+}
+
+namespace {
+bool is_scalar_matrix(const Eigen::Matrix3d& L) {
+  const double t = L.trace() / 3.0;
+  const Eigen::Matrix3d dev = L - t * Eigen::Matrix3d::Identity();
+  return dev.cwiseAbs().maxCoeff() <= 1e-12 * (1.0 + std::abs(t));
+}
+}  // namespace
+
+TransformLog transform_log(const Eigen::Matrix3d& M) {
+  Eigen::Matrix3d S, R;
+  polar_decompose(M, &S, &R);
+  TransformLog out;
+  out.log_stretch = spd_log(S);
+  out.rotation = rotation_log(R);
+  out.similarity = is_scalar_matrix(out.log_stretch);
+  if (out.similarity) {
+    out.log_stretch = (out.log_stretch.trace() / 3.0) * Eigen::Matrix3d::Identity();
+  }
+  return out;
+}
+
+Eigen::Matrix3d transform_exp(const TransformLog& L) {
+  const Eigen::Matrix3d R = rotation_exp(L.rotation);
+  if (L.similarity || is_scalar_matrix(L.log_stretch)) {
+    return std::exp(L.log_stretch.trace() / 3.0) * R;
+  }
+  return sym_exp(L.log_stretch) * R;
+}
+
+Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* weights) {
+  TransformLog sum;
+  sum.similarity = true;
+  for (size_t a = 0; a < logs.size(); ++a) {
+    sum.log_stretch += weights[a] * logs[a].log_stretch;
+    sum.rotation += weights[a] * logs[a].rotation;
+    sum.similarity = sum.similarity && logs[a].similarity;
+  }
+  return transform_exp(sum);
+}
+
+void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights,
+               Matrix3Array* out) {
+  const Eigen::Index m = weights.rows();
+  const Eigen::Index k = weights.cols();
+  if (static_cast<Eigen::Index>(logs.size()) != k) {
+    throw std::invalid_argument("blend_all: one log per weight column expected");
+  }
+  out->resize(static_cast<size_t>(m));
+  bool all_similar = true;
+  for (const auto& l : logs) all_similar = all_similar && l.similarity;
+
+  if (all_similar) {
+    // Closed form: exp(s I + [w]x) = e^s * Rodrigues(w), no eigen-solves per face.
+    Eigen::Matrix<double, 4, Eigen::Dynamic> P(4, k);
+    for (Eigen::Index a = 0; a < k; ++a) {
+      P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
+      P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
+    }
+#pragma omp parallel for schedule(static)
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const Eigen::Vector4d s = P * weights.row(i).transpose();
+      (*out)[static_cast<size_t>(i)] = std::exp(s(3)) * rotation_exp(s.head<3>());
+    }
+    return;
+  }
+#pragma omp parallel for schedule(static)
+  for (Eigen::Index i = 0; i < m; ++i) {
+    (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
+  }
+}
+
+}  // namespace matdeform

@@ -1,0 +1,73 @@
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+
+#include "matdeform/deformer.hpp"
+#include "matdeform/mesh.hpp"
+#include "matdeform/reposition.hpp"
+#include "test_meshes.hpp"
+
+using namespace matdeform;
+
+TEST(Reposition, UniformTargetWithFixedVertexIsAffineImage) {
+  Vertices V;
+  Faces F;
+  meshes::make_bar(6, 6.0, &V, &F);
+  const Eigen::Matrix3d A =
+      0.8 * Eigen::AngleAxisd(1.2, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
+  const Eigen::Vector3d t(1, 2, 3);
+  PoissonRepositioner rep(V, F, Eigen::VectorXd::Constant(F.rows(), 2.0), {5});
+  Vertices fixed(1, 3);
+  fixed.row(0) = (A * V.row(5).transpose() + t).transpose();
+  Vertices X;
+  rep.solve(Matrix3Array(F.rows(), A), fixed, &X);
+  const Vertices expect = (V * A.transpose()).rowwise() + t.transpose();
+  EXPECT_LT((X - expect).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_EQ(rep.num_unknowns(), V.rows() - 1);
+}
+
+TEST(Reposition, NothingFixedKeepsVertexMeanAtRest) {
+  Vertices V;
+  Faces F;
+  meshes::make_bar(5, 5.0, &V, &F);
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(0.5, Eigen::Vector3d::UnitZ()).toRotationMatrix();
+  PoissonRepositioner rep(V, F, Eigen::VectorXd::Ones(F.rows()), {});
+  Vertices X;
+  rep.solve(Matrix3Array(F.rows(), R), Vertices(0, 3), &X);
+  const Eigen::RowVector3d c = V.colwise().mean();
+  const Vertices expect = ((V.rowwise() - c) * R.transpose()).rowwise() + c;
+  EXPECT_LT((X - expect).cwiseAbs().maxCoeff(), 1e-10);
+}
+
+TEST(Reposition, DegenerateFacesAndLooseVerticesAreHandled) {
+  Vertices V;
+  Faces F;
+  meshes::make_grid(3, 3, &V, &F);
+  // Append a loose vertex and a zero-area sliver using it twice with an existing vertex.
+  Vertices V2(V.rows() + 2, 3);
+  V2 << V, 10, 10, 10, 0.5, 0.0, 0.0;  // second extra vertex lies on edge (0,1): zero area
+  Faces F2(F.rows() + 1, 3);
+  F2 << F, 0, 1, static_cast<int>(V.rows()) + 1;
+  PoissonRepositioner rep(V2, F2, Eigen::VectorXd::Ones(F2.rows()), {});
+  Vertices X;
+  rep.solve(Matrix3Array(F2.rows(), Eigen::Matrix3d::Identity()), Vertices(0, 3), &X);
+  ASSERT_TRUE(X.allFinite());
+  EXPECT_LT((X - V2).cwiseAbs().maxCoeff(), 1e-10);  // identity: everything at rest
+}
+
+TEST(Deformer, FollowModeReproducesCommonRigidTransform) {
+  Vertices V;
+  Faces F;
+  meshes::make_bar(10, 10.0, &V, &F);
+  const int m = static_cast<int>(F.rows());
+  const DualEdges dual = dual_edges(F);
+  MaterialDeformer d(V, F, {{m - 4, m - 3}, {m - 2, m - 1}}, Eigen::VectorXd::Ones(m),
+                     Eigen::VectorXd::Ones(dual.pairs.rows()), std::nullopt);
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  T.topLeftCorner<3, 3>() = Eigen::AngleAxisd(2.9, Eigen::Vector3d(1, 1, 1).normalized()).toRotationMatrix();
+  T.topRightCorner<3, 1>() << 4, -2, 1;
+  const Vertices X = d.deform({T, T}, true, nullptr);
+  const Vertices expect =
+      (V * T.topLeftCorner<3, 3>().transpose()).rowwise() + T.topRightCorner<3, 1>().transpose();
+  EXPECT_LT((X - expect).cwiseAbs().maxCoeff(), 1e-9);
+}

@@ -1,0 +1,116 @@
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <random>
+#include <unsupported/Eigen/MatrixFunctions>
+
+#include "matdeform/transforms.hpp"
+
+using namespace matdeform;
+
+namespace {
+Eigen::Matrix3d skew(const Eigen::Vector3d& w) {
+  Eigen::Matrix3d K;
+  K << 0, -w.z(), w.y(), w.z(), 0, -w.x(), -w.y(), w.x(), 0;
+  return K;
+}
+}  // namespace
+
+TEST(Transforms, RotationExpMatchesMatrixExponential) {
+  std::mt19937 rng(1);
+  std::normal_distribution<double> g;
+  for (int t = 0; t < 50; ++t) {
+    const Eigen::Vector3d w(g(rng), g(rng), g(rng));
+    const Eigen::Matrix3d ref = skew(w).exp();  // Eigen's general matrix exponential
+    EXPECT_LT((rotation_exp(w) - ref).norm(), 1e-12);
+  }
+}
+
+TEST(Transforms, RotationLogRoundTripIncludingNearPi) {
+  std::mt19937 rng(2);
+  std::normal_distribution<double> g;
+  const double angles[] = {0.0, 1e-10, 1e-6, 0.3, 1.0, 2.5, M_PI - 1e-3, M_PI - 1e-8, M_PI};
+  for (double theta : angles) {
+    for (int t = 0; t < 20; ++t) {
+      const Eigen::Vector3d axis = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(theta, axis).toRotationMatrix();
+      const Eigen::Vector3d w = rotation_log(R);
+      ASSERT_TRUE(w.allFinite());
+      EXPECT_NEAR(w.norm(), theta, 1e-7);
+      EXPECT_LT((rotation_exp(w) - R).norm(), 1e-12) << "theta=" << theta;
+      if (theta > 1e-6 && theta < M_PI - 1e-6) {
+        EXPECT_LT((w - theta * axis).norm(), 1e-9);
+      }
+    }
+  }
+}
+
+TEST(Transforms, ScaledRotationLogIsLogScaleAndAxisAngle) {
+  const Eigen::Vector3d axis = Eigen::Vector3d(1, 2, -0.5).normalized();
+  const double theta = 2.0, s = 3.0;
+  const Eigen::Matrix3d M = s * Eigen::AngleAxisd(theta, axis).toRotationMatrix();
+  const TransformLog L = transform_log(M);
+  EXPECT_TRUE(L.similarity);
+  EXPECT_LT((L.log_stretch - std::log(s) * Eigen::Matrix3d::Identity()).norm(), 1e-12);
+  EXPECT_LT((L.rotation - theta * axis).norm(), 1e-12);
+  // For a similarity the algebra is Alexa's: exp(log M) with the real matrix log.
+  const Eigen::Matrix3d logM = L.log_stretch + skew(L.rotation);
+  EXPECT_LT((logM.exp() - M).norm(), 1e-11);
+  EXPECT_LT((transform_exp(L) - M).norm(), 1e-12);
+}
+
+TEST(Transforms, GeneralPositiveDeterminantRoundTrip) {
+  std::mt19937 rng(3);
+  std::normal_distribution<double> g;
+  int tested = 0;
+  while (tested < 200) {
+    Eigen::Matrix3d M;
+    for (int i = 0; i < 9; ++i) M(i / 3, i % 3) = g(rng);
+    if (M.determinant() <= 0.05) continue;
+    ++tested;
+    const TransformLog L = transform_log(M);
+    EXPECT_FALSE(L.similarity);
+    EXPECT_LT((transform_exp(L) - M).norm(), 1e-9 * M.norm());
+  }
+  // No real matrix log exists for this one, the polar route still works.
+  const Eigen::Matrix3d N = Eigen::Vector3d(-1.0, -2.0, 1.0).asDiagonal();
+  EXPECT_LT((transform_exp(transform_log(N)) - N).norm(), 1e-12);
+}
+
+TEST(Transforms, RejectsNonPositiveDeterminant) {
+  EXPECT_THROW(transform_log(Eigen::Vector3d(1, 1, -1).asDiagonal()), std::invalid_argument);
+  EXPECT_THROW(transform_log(Eigen::Matrix3d::Zero()), std::invalid_argument);
+  Eigen::Matrix3d nan = Eigen::Matrix3d::Identity();
+  nan(0, 1) = std::nan("");
+  EXPECT_THROW(transform_log(nan), std::invalid_argument);
+}
+
+TEST(Transforms, BlendHalfwayIsHalfAngleAndGeometricMeanScale) {
+  const Eigen::Vector3d axis = Eigen::Vector3d(0, 0, 1);
+  std::vector<TransformLog> logs = {transform_log(Eigen::Matrix3d::Identity()),
+                                    transform_log(4.0 * Eigen::AngleAxisd(M_PI, axis).toRotationMatrix())};
+  const double w[2] = {0.5, 0.5};
+  const Eigen::Matrix3d B = blend_logs(logs, w);
+  const Eigen::Matrix3d expect = 2.0 * Eigen::AngleAxisd(M_PI / 2, axis).toRotationMatrix();
+  // The axis at exactly pi has a sign ambiguity; either half-turn direction is valid.
+  const Eigen::Matrix3d expect2 = 2.0 * Eigen::AngleAxisd(-M_PI / 2, axis).toRotationMatrix();
+  EXPECT_LT(std::min((B - expect).norm(), (B - expect2).norm()), 1e-12);
+  ASSERT_TRUE(B.allFinite());
+}
+
+TEST(Transforms, BlendAllFastPathMatchesGeneralPath) {
+  std::vector<TransformLog> logs = {
+      transform_log(1.5 * Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitX()).toRotationMatrix()),
+      transform_log(0.5 * Eigen::AngleAxisd(3.0, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix()),
+      transform_log(Eigen::Matrix3d::Identity())};
+  RowMatrix W(4, 3);
+  W << 1, 0, 0, 0.2, 0.3, 0.5, 0.5, 0.5, 0, 0, 0, 0;
+  Matrix3Array out;
+  blend_all(logs, W, &out);
+  for (int i = 0; i < 4; ++i) {
+    const Eigen::Matrix3d ref = blend_logs(logs, W.row(i).data());
+    EXPECT_LT((out[i] - ref).norm(), 1e-12);
+  }
+  EXPECT_LT((out[3] - Eigen::Matrix3d::Identity()).norm(), 1e-15);  // zero weights: identity
+}

@@ -1,0 +1,125 @@
+#include <gtest/gtest.h>
+
+#include <queue>
+#include <random>
+
+#include "matdeform/mesh.hpp"
+#include "matdeform/weights.hpp"
+#include "test_meshes.hpp"
+
+using namespace matdeform;
+
+TEST(Weights, PartitionOfUnityAnchorsExactAndMaximumPrinciple) {
+  Vertices V;
+  Faces F;
+  meshes::make_bar(20, 10.0, &V, &F);
+  const DualEdges dual = dual_edges(F);
+  const int m = static_cast<int>(F.rows());
+  std::mt19937 rng(4);
+  std::uniform_real_distribution<double> u(0.001, 1.0);
+  Eigen::VectorXd phi(dual.pairs.rows());
+  for (Eigen::Index e = 0; e < phi.size(); ++e) phi(e) = u(rng);
+  const AnchorList anchors = {{m - 4, m - 3}, {m - 2, m - 1}, {10, 11}};
+  const RowMatrix W = harmonic_weights(m, dual.pairs, phi, anchors);
+  ASSERT_EQ(W.rows(), m);
+  ASSERT_EQ(W.cols(), 3);
+  for (int i = 0; i < m; ++i) {
+    EXPECT_NEAR(W.row(i).sum(), 1.0, 1e-12);
+    EXPECT_GE(W.row(i).minCoeff(), -1e-14);
+    EXPECT_LE(W.row(i).maxCoeff(), 1.0 + 1e-14);
+  }
+  for (size_t a = 0; a < anchors.size(); ++a) {
+    for (int f : anchors[a]) {
+      for (int b = 0; b < 3; ++b) EXPECT_EQ(W(f, b), b == static_cast<int>(a) ? 1.0 : 0.0);
+    }
+  }
+  // Interior faces are strict mixtures: harmonic functions have no interior extrema.
+  EXPECT_GT(W(static_cast<int>(m / 2), 0), 0.0);
+  EXPECT_LT(W(static_cast<int>(m / 2), 0), 1.0);
+}
+
+TEST(Weights, PathGraphMatchesSeriesResistanceClosedForm) {
+  // A one-square-wide strip: its dual graph is a path, where the harmonic weight of the first
+  // end is the resistance (sum of 1/phi) to the far end over the total resistance.
+  Vertices V;
+  Faces F;
+  meshes::make_grid(12, 1, &V, &F);
+  const DualEdges dual = dual_edges(F);
+  const int m = static_cast<int>(F.rows());
+  ASSERT_EQ(dual.pairs.rows(), m - 1);
+  std::vector<std::vector<std::pair<int, int>>> adj(m);
+  for (int e = 0; e < dual.pairs.rows(); ++e) {
+    adj[dual.pairs(e, 0)].push_back({dual.pairs(e, 1), e});
+    adj[dual.pairs(e, 1)].push_back({dual.pairs(e, 0), e});
+  }
+  int start = -1;
+  for (int f = 0; f < m; ++f)
+    if (adj[f].size() == 1) start = f;
+  std::vector<int> order = {start}, via = {-1};
+  std::vector<char> seen(m, 0);
+  seen[start] = 1;
+  while (static_cast<int>(order.size()) < m) {
+    for (auto [g, e] : adj[order.back()]) {
+      if (!seen[g]) {
+        seen[g] = 1;
+        order.push_back(g);
+        via.push_back(e);
+        break;
+      }
+    }
+  }
+  Eigen::VectorXd phi(dual.pairs.rows());
+  for (int e = 0; e < phi.size(); ++e) phi(e) = 0.1 + (e % 5) * 0.7;
+  const RowMatrix W = harmonic_weights(m, dual.pairs, phi, {{order.front()}, {order.back()}});
+  std::vector<double> r_to_end(m, 0.0);
+  for (int p = m - 2; p >= 0; --p) r_to_end[p] = r_to_end[p + 1] + 1.0 / phi(via[p + 1]);
+  for (int p = 0; p < m; ++p) {
+    EXPECT_NEAR(W(order[p], 0), r_to_end[p] / r_to_end[0], 1e-12);
+  }
+}
+
+TEST(Weights, UnreachedComponentGetsZeroWeights) {
+  Vertices V1, V2;
+  Faces F1, F2;
+  meshes::make_grid(3, 3, &V1, &F1);
+  Faces F(2 * F1.rows(), 3);
+  F << F1, (F1.array() + static_cast<int>(V1.rows())).matrix();
+  const DualEdges dual = dual_edges(F);
+  const int m = static_cast<int>(F.rows());
+  const RowMatrix W =
+      harmonic_weights(m, dual.pairs, Eigen::VectorXd::Ones(dual.pairs.rows()), {{0}, {5}});
+  for (int f = 0; f < m / 2; ++f) EXPECT_NEAR(W.row(f).sum(), 1.0, 1e-12);
+  for (int f = m / 2; f < m; ++f) EXPECT_EQ(W.row(f).squaredNorm(), 0.0);
+}
+
+TEST(Weights, RejectsBadAnchors) {
+  Vertices V;
+  Faces F;
+  meshes::make_grid(2, 2, &V, &F);
+  const DualEdges dual = dual_edges(F);
+  const Eigen::VectorXd phi = Eigen::VectorXd::Ones(dual.pairs.rows());
+  EXPECT_THROW(harmonic_weights(8, dual.pairs, phi, {}), std::invalid_argument);
+  EXPECT_THROW(harmonic_weights(8, dual.pairs, phi, {{0}, {}}), std::invalid_argument);
+  EXPECT_THROW(harmonic_weights(8, dual.pairs, phi, {{0, 1}, {1}}), std::invalid_argument);
+  EXPECT_THROW(harmonic_weights(8, dual.pairs, phi, {{8}}), std::invalid_argument);
+  Eigen::VectorXd bad = phi;
+  bad(0) = 0.0;
+  EXPECT_THROW(harmonic_weights(8, dual.pairs, bad, {{0}}), std::invalid_argument);
+}
+
+TEST(Mesh, DualEdgesOfTwoTrianglesAndNonManifoldFan) {
+  Faces F(3, 3);
+  F << 0, 1, 2, 2, 1, 3, 1, 2, 4;  // edge (1,2) shared by three faces
+  const DualEdges d = dual_edges(F);
+  ASSERT_EQ(d.pairs.rows(), 3);
+  EXPECT_EQ(d.pairs(0, 0), 0);
+  EXPECT_EQ(d.pairs(0, 1), 1);
+  EXPECT_EQ(d.pairs(1, 0), 0);
+  EXPECT_EQ(d.pairs(1, 1), 2);
+  EXPECT_EQ(d.pairs(2, 0), 1);
+  EXPECT_EQ(d.pairs(2, 1), 2);
+  for (int e = 0; e < 3; ++e) {
+    EXPECT_EQ(d.shared(e, 0), 1);
+    EXPECT_EQ(d.shared(e, 1), 2);
+  }
+}
