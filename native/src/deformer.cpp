@@ -66,7 +66,8 @@ MaterialDeformer::~MaterialDeformer() = default;
 
 const PoissonRepositioner& MaterialDeformer::repositioner(bool follow) const {
   if (follow || pinned_) return *follow_;
-  if (!free_) free_ = std::make_unique<PoissonRepositioner>(rest_, faces_, shear_, std::vector<int>{});
+  if (!free_)
+    free_ = std::make_unique<PoissonRepositioner>(rest_, faces_, shear_, std::vector<int>{});
   return *free_;
 }
 
@@ -85,7 +86,8 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
       throw std::invalid_argument("transforms[" + std::to_string(a) + "]: " + e.what());
     }
     if (has_translation && !transforms[a].topRightCorner<3, 1>().allFinite()) {
-      throw std::invalid_argument("transforms[" + std::to_string(a) + "] has a non-finite translation");
+      throw std::invalid_argument("transforms[" + std::to_string(a) +
+                                  "] has a non-finite translation");
     }
   }
   blend_all(logs, weights_, &blended_);

@@ -51,8 +51,9 @@ Matrix3Array deformation_gradients(const Vertices& rest, const Vertices& deforme
     out[static_cast<size_t>(i)] = Vt * lu.inverse();
   }
   if (degenerate) {
-    throw std::invalid_argument("rest face " + std::to_string(bad) +
-                                " is degenerate (zero area); its deformation gradient is undefined");
+    throw std::invalid_argument(
+        "rest face " + std::to_string(bad) +
+        " is degenerate (zero area); its deformation gradient is undefined");
   }
   return out;
 }

@@ -30,15 +30,15 @@ struct PoissonRepositioner::Impl {
   // Per usable face: psi * (G_v - m_v4 g_4^T / mu), the condensed right-hand-side operator.
   // Row l is the contribution of local vertex l: rhs_l = H.row(l) * T^T.
   std::vector<Eigen::Matrix3d> H;
-  std::vector<int> free_index;   // n; -1 for fixed vertices
-  std::vector<int> free_verts;   // free vertex ids in unknown order
-  std::vector<int> fixed_all;    // user fixed, then loose vertices, then gauge vertices
+  std::vector<int> free_index;  // n; -1 for fixed vertices
+  std::vector<int> free_verts;  // free vertex ids in unknown order
+  std::vector<int> fixed_all;   // user fixed, then loose vertices, then gauge vertices
   int num_user_fixed = 0;
   Eigen::SparseMatrix<double, Eigen::RowMajor> K_fp;  // free x fixed_all coupling
   std::unique_ptr<SparseCholesky> chol;
   std::vector<int> inc_offset, inc_slot;  // per free vertex: face*3+local slots (CSR)
   // Components solved only up to translation: restore their rest vertex mean afterwards.
-  std::vector<int> gauge_comp_of;   // n; -1 when the vertex's component has a fixed vertex
+  std::vector<int> gauge_comp_of;  // n; -1 when the vertex's component has a fixed vertex
   std::vector<Eigen::Vector3d> gauge_rest_mean;
   std::vector<double> gauge_count;
 
@@ -62,7 +62,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
     if (v < 0 || v >= d.n) {
       throw std::invalid_argument("pinned vertex " + std::to_string(v) + " out of range");
     }
-    if (is_fixed[v]) throw std::invalid_argument("pinned vertex " + std::to_string(v) + " repeated");
+    if (is_fixed[v])
+      throw std::invalid_argument("pinned vertex " + std::to_string(v) + " repeated");
     is_fixed[v] = 1;
   }
 

@@ -36,9 +36,9 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in)
   Eigen::SparseMatrix<double> A = A_in.triangularView<Eigen::Lower>();
   A.makeCompressed();
   cholmod_common* c = &impl_->c;
-  cholmod_sparse* As = cholmod_allocate_sparse(static_cast<size_t>(n_), static_cast<size_t>(n_),
-                                               static_cast<size_t>(A.nonZeros()), 1, 1, -1,
-                                               CHOLMOD_REAL, c);
+  cholmod_sparse* As =
+      cholmod_allocate_sparse(static_cast<size_t>(n_), static_cast<size_t>(n_),
+                              static_cast<size_t>(A.nonZeros()), 1, 1, -1, CHOLMOD_REAL, c);
   if (!As) throw std::runtime_error("CHOLMOD could not allocate the matrix");
   std::memcpy(As->p, A.outerIndexPtr(), sizeof(int) * static_cast<size_t>(n_ + 1));
   std::memcpy(As->i, A.innerIndexPtr(), sizeof(int) * static_cast<size_t>(A.nonZeros()));

@@ -98,8 +98,7 @@ Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* 
   return transform_exp(sum);
 }
 
-void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights,
-               Matrix3Array* out) {
+void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out) {
   const Eigen::Index m = weights.rows();
   const Eigen::Index k = weights.cols();
   if (static_cast<Eigen::Index>(logs.size()) != k) {

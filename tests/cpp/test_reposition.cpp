@@ -64,7 +64,8 @@ TEST(Deformer, FollowModeReproducesCommonRigidTransform) {
   MaterialDeformer d(V, F, {{m - 4, m - 3}, {m - 2, m - 1}}, Eigen::VectorXd::Ones(m),
                      Eigen::VectorXd::Ones(dual.pairs.rows()), std::nullopt);
   Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
-  T.topLeftCorner<3, 3>() = Eigen::AngleAxisd(2.9, Eigen::Vector3d(1, 1, 1).normalized()).toRotationMatrix();
+  T.topLeftCorner<3, 3>() =
+      Eigen::AngleAxisd(2.9, Eigen::Vector3d(1, 1, 1).normalized()).toRotationMatrix();
   T.topRightCorner<3, 1>() << 4, -2, 1;
   const Vertices X = d.deform({T, T}, true, nullptr);
   const Vertices expect =

@@ -88,8 +88,9 @@ TEST(Transforms, RejectsNonPositiveDeterminant) {
 
 TEST(Transforms, BlendHalfwayIsHalfAngleAndGeometricMeanScale) {
   const Eigen::Vector3d axis = Eigen::Vector3d(0, 0, 1);
-  std::vector<TransformLog> logs = {transform_log(Eigen::Matrix3d::Identity()),
-                                    transform_log(4.0 * Eigen::AngleAxisd(M_PI, axis).toRotationMatrix())};
+  std::vector<TransformLog> logs = {
+      transform_log(Eigen::Matrix3d::Identity()),
+      transform_log(4.0 * Eigen::AngleAxisd(M_PI, axis).toRotationMatrix())};
   const double w[2] = {0.5, 0.5};
   const Eigen::Matrix3d B = blend_logs(logs, w);
   const Eigen::Matrix3d expect = 2.0 * Eigen::AngleAxisd(M_PI / 2, axis).toRotationMatrix();
@@ -102,7 +103,8 @@ TEST(Transforms, BlendHalfwayIsHalfAngleAndGeometricMeanScale) {
 TEST(Transforms, BlendAllFastPathMatchesGeneralPath) {
   std::vector<TransformLog> logs = {
       transform_log(1.5 * Eigen::AngleAxisd(0.7, Eigen::Vector3d::UnitX()).toRotationMatrix()),
-      transform_log(0.5 * Eigen::AngleAxisd(3.0, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix()),
+      transform_log(
+          0.5 * Eigen::AngleAxisd(3.0, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix()),
       transform_log(Eigen::Matrix3d::Identity())};
   RowMatrix W(4, 3);
   W << 1, 0, 0, 0.2, 0.3, 0.5, 0.5, 0.5, 0, 0, 0, 0;

@@ -50,10 +50,10 @@ class MaterialDeformer {
   std::optional<std::vector<int>> pinned_;
   RowMatrix weights_;
   // Vertex -> anchors whose faces use it (for following anchors), CSR.
-  std::vector<int> anchor_vertices_;                      // unique, sorted
-  std::vector<int> av_offsets_, av_anchors_;              // per anchor_vertices_ entry
-  mutable std::unique_ptr<PoissonRepositioner> follow_;   // anchor vertices (or pinned) fixed
-  mutable std::unique_ptr<PoissonRepositioner> free_;     // nothing fixed (pinned empty, 3x3)
+  std::vector<int> anchor_vertices_;                     // unique, sorted
+  std::vector<int> av_offsets_, av_anchors_;             // per anchor_vertices_ entry
+  mutable std::unique_ptr<PoissonRepositioner> follow_;  // anchor vertices (or pinned) fixed
+  mutable std::unique_ptr<PoissonRepositioner> free_;    // nothing fixed (pinned empty, 3x3)
   mutable Matrix3Array blended_;
 };
 

@@ -42,7 +42,6 @@ Eigen::Matrix3d transform_exp(const TransformLog& L);
 Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* weights);
 
 // Blends for all faces: weights is (m,k), output m matrices. Parallel over faces.
-void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights,
-               Matrix3Array* out);
+void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out);
 
 }  // namespace matdeform

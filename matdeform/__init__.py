@@ -1,0 +1,31 @@
+"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006).
+
+numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
+"""
+
+from .deformer import MaterialDeformer
+from .frames import deformation_gradients
+from .mesh import boundary_and_nonmanifold_edges, dual_edges
+from .obj import read_obj, write_obj
+from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
+from .transforms import blend_transforms, polar_decompose, transform_exp, transform_log
+from .weights import harmonic_weights
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "MaterialDeformer",
+    "bend_from_shear",
+    "bend_from_vertex",
+    "blend_transforms",
+    "boundary_and_nonmanifold_edges",
+    "deformation_gradients",
+    "dual_edges",
+    "harmonic_weights",
+    "polar_decompose",
+    "read_obj",
+    "shear_from_vertex",
+    "transform_exp",
+    "transform_log",
+    "write_obj",
+]

@@ -1,0 +1,119 @@
+"""Input checks shared by the public API. Each raises ValueError naming the argument."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def _fail(name: str, msg: str) -> ValueError:
+    return ValueError(f"{name}: {msg}")
+
+
+def as_vertices(x, name: str = "vertices", rows: int | None = None) -> np.ndarray:
+    """(n,3) finite float64, C-contiguous."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise _fail(name, f"expected a float array of shape (n,3) ({e})") from None
+    if a.ndim != 2 or a.shape[1] != 3:
+        raise _fail(name, f"expected shape (n,3), got {a.shape}")
+    if rows is not None and a.shape[0] != rows:
+        raise _fail(name, f"expected shape ({rows},3), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise _fail(name, "contains NaN or infinity")
+    return np.ascontiguousarray(a)
+
+
+def as_int_array(x, name: str, ndim: int) -> np.ndarray:
+    a = np.asarray(x)
+    if a.dtype == object or not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
+        raise _fail(name, f"expected an integer array, got dtype {a.dtype}")
+    if a.ndim != ndim:
+        raise _fail(name, f"expected a {ndim}-d integer array, got shape {a.shape}")
+    if a.size and (a.max() > np.iinfo(np.int32).max or a.min() < np.iinfo(np.int32).min):
+        raise _fail(name, "indices do not fit in 32 bits")
+    return np.ascontiguousarray(a, dtype=np.int32)
+
+
+def as_faces(x, num_vertices: int, name: str = "faces") -> np.ndarray:
+    """(m,3) int32 triangles with indices in [0, num_vertices) and no repeated corner."""
+    f = as_int_array(x, name, 2)
+    if f.shape[1] != 3:
+        raise _fail(name, f"expected triangles of shape (m,3), got {f.shape}")
+    if f.shape[0] == 0:
+        raise _fail(name, "expected at least one triangle, got shape (0,3)")
+    if f.min() < 0 or f.max() >= num_vertices:
+        raise _fail(name, f"indices must lie in [0, {num_vertices}), got [{f.min()}, {f.max()}]")
+    bad = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
+    if bad.any():
+        raise _fail(name, f"face {int(np.flatnonzero(bad)[0])} repeats a vertex")
+    return f
+
+
+def as_index_set(x, upper: int, name: str) -> np.ndarray:
+    """1-d unique indices in [0, upper), order kept."""
+    a = as_int_array(x, name, 1)
+    if a.size and (a.min() < 0 or a.max() >= upper):
+        raise _fail(name, f"indices must lie in [0, {upper}), got [{a.min()}, {a.max()}]")
+    if np.unique(a).size != a.size:
+        raise _fail(name, "indices must be unique")
+    return a
+
+
+def as_anchors(anchors, num_faces: int, name: str = "anchors") -> list[np.ndarray]:
+    """List of k non-empty, disjoint face index arrays."""
+    if isinstance(anchors, np.ndarray) and anchors.dtype != object:
+        anchors = list(anchors) if anchors.ndim == 2 else [anchors]
+    try:
+        items = list(anchors)
+    except TypeError:
+        raise _fail(name, "expected a list of k integer arrays of face indices") from None
+    if not items:
+        raise _fail(name, "expected at least one anchor")
+    out = []
+    owner = np.full(num_faces, -1, dtype=np.int64)
+    for a, item in enumerate(items):
+        idx = as_index_set(np.atleast_1d(np.asarray(item)), num_faces, f"{name}[{a}]")
+        if idx.size == 0:
+            raise _fail(f"{name}[{a}]", "anchor has no faces")
+        clash = owner[idx] >= 0
+        if clash.any():
+            other = int(owner[idx[clash][0]])
+            raise _fail(name, f"anchors {other} and {a} overlap (face {int(idx[clash][0])})")
+        owner[idx] = a
+        out.append(idx)
+    return out
+
+
+def as_stiffness(x, size: int, name: str) -> np.ndarray:
+    """(size,) finite float64 > 0."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(name, f"expected a float array of shape ({size},)") from None
+    if a.shape != (size,):
+        raise _fail(name, f"expected shape ({size},), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise _fail(name, "contains NaN or infinity")
+    if (a <= 0).any():
+        raise _fail(name, f"stiffness must be > 0 (min is {a.min()})")
+    return np.ascontiguousarray(a)
+
+
+def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
+    """(count,3,3) or (count,4,4) finite, linear part with det > 0, affine bottom row."""
+    try:
+        t = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(name, f"expected shape ({count},3,3) or ({count},4,4)") from None
+    if t.ndim != 3 or t.shape[1:] not in ((3, 3), (4, 4)) or t.shape[0] != count:
+        raise _fail(name, f"expected shape ({count},3,3) or ({count},4,4), got {t.shape}")
+    if not np.isfinite(t).all():
+        raise _fail(name, "contains NaN or infinity")
+    det = np.linalg.det(t[:, :3, :3])
+    if (det <= 0).any():
+        a = int(np.flatnonzero(det <= 0)[0])
+        raise _fail(name, f"transform {a} has det {det[a]:.3g}; rotation and scale need det > 0")
+    if t.shape[1] == 4 and not np.allclose(t[:, 3, :], [0.0, 0.0, 0.0, 1.0], atol=1e-12):
+        raise _fail(name, "4x4 transforms must be affine (bottom row 0 0 0 1)")
+    return np.ascontiguousarray(t)

@@ -1,0 +1,117 @@
+"""Material-aware mesh deformation (Popa, Julius, Sheffer 2006)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._validate import (
+    as_anchors,
+    as_faces,
+    as_index_set,
+    as_stiffness,
+    as_transforms,
+    as_vertices,
+)
+
+
+class MaterialDeformer:
+    """Deform a triangle mesh by anchor transforms, placing bending and shear where it is soft.
+
+    The constructor does all the heavy work once: harmonic blending weights (Eq. 1) and the
+    sparse Cholesky factorisation of the repositioning system (Eq. 3-4). deform() then only
+    blends the anchor transforms (Eq. 2), assembles a right-hand side and back-substitutes.
+
+    Parameters
+    ----------
+    vertices : (n,3) float, rest positions (any length unit; output uses the same unit).
+    faces : (m,3) int, triangles.
+    anchors : list of k int arrays of face indices, non-empty and pairwise disjoint.
+    shear : (m,) float > 0, per-face shear stiffness psi. Default 1.
+    bend : (E,) float > 0 per dual edge in ``dual_edges(faces)`` order, or (n,) per vertex
+        (averaged over each shared mesh edge). Default: phi_fg = (psi_f + psi_g)/2. If E == n
+        the array is taken per dual edge; use ``bend_from_vertex`` to be explicit.
+    pinned : int array of vertex indices fixed in deform(), or None.
+
+    Pinning rules
+    -------------
+    * (k,4,4) transforms, pinned=None: the vertices of every anchor's faces follow that anchor's
+      full transform (a vertex shared by anchors takes the mean). Factored in the constructor.
+    * (k,3,3) transforms, pinned=None: only rotation and scale are prescribed (paper Sec. 4.3);
+      each connected component is placed so that its vertex mean stays at its rest position.
+      This system is factored on the first such call and cached.
+    * pinned given: exactly those vertices are fixed, at ``pinned_positions`` (len(pinned),3)
+      when given; otherwise pinned anchor vertices follow their anchor's 4x4 transform and the
+      other pinned vertices stay at rest.
+
+    Defined behaviour: faces in a component no anchor reaches keep the identity transform;
+    degenerate (zero-area or needle) faces are left out of the repositioning energy; vertices in
+    no usable face keep their rest (or pinned) position. The output never contains NaN.
+    """
+
+    def __init__(self, vertices, faces, anchors, shear=None, bend=None, pinned=None):
+        v = as_vertices(vertices)
+        f = as_faces(faces, v.shape[0])
+        n, m = v.shape[0], f.shape[0]
+        anchor_list = as_anchors(anchors, m)
+        pairs, shared = _core.dual_edges(f)
+        psi = np.ones(m) if shear is None else as_stiffness(shear, m, "shear")
+        if bend is None:
+            phi = _core.bend_from_shear(pairs, psi)
+        else:
+            b = np.asarray(bend, dtype=np.float64)
+            if b.shape == (len(pairs),):
+                phi = as_stiffness(b, len(pairs), "bend")
+            elif b.shape == (n,):
+                phi = _core.bend_from_vertex(pairs, shared, as_stiffness(b, n, "bend"))
+            else:
+                raise ValueError(
+                    f"bend: expected shape ({len(pairs)},) per dual edge or ({n},) per vertex, "
+                    f"got {b.shape}"
+                )
+        self._pinned = None if pinned is None else as_index_set(pinned, n, "pinned")
+        self._n, self._m, self._k = n, m, len(anchor_list)
+        self._core = _core.MaterialDeformer(
+            v, f, anchor_list, psi, phi, None if self._pinned is None else self._pinned.tolist()
+        )
+
+    def deform(self, transforms, pinned_positions=None) -> np.ndarray:
+        """Deformed positions (n,3) float64 for anchor transforms (k,3,3) or (k,4,4).
+
+        transforms are in the mesh's coordinate frame; their linear part needs det > 0.
+        pinned_positions: (len(pinned),3), only when the deformer was built with ``pinned``.
+        """
+        t = as_transforms(transforms, self._k)
+        pp = None
+        if pinned_positions is not None:
+            if self._pinned is None:
+                raise ValueError("pinned_positions: given, but the deformer has no pinned vertices")
+            pp = as_vertices(pinned_positions, "pinned_positions", rows=len(self._pinned))
+        return self._core.deform(t, pp)
+
+    @property
+    def weights(self) -> np.ndarray:
+        """(m,k) blending weights per face and anchor (read-only view)."""
+        return self._core.weights
+
+    @property
+    def face_transforms(self) -> np.ndarray:
+        """(m,3,3) blended per-face transforms T_i of the last deform() call."""
+        return self._core.face_transforms
+
+    @property
+    def pinned(self) -> np.ndarray | None:
+        """The pinned vertex indices given to the constructor, or None."""
+        return None if self._pinned is None else self._pinned.copy()
+
+    @property
+    def num_vertices(self) -> int:
+        return self._n
+
+    @property
+    def num_faces(self) -> int:
+        return self._m
+
+    @property
+    def num_anchors(self) -> int:
+        return self._k

@@ -1,0 +1,34 @@
+"""Mesh topology: dual edges (pairs of faces sharing a mesh edge)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._validate import as_int_array
+
+
+def dual_edges(faces, return_shared: bool = False):
+    """Pairs of faces that share a mesh edge.
+
+    faces: (m,3) int triangles.
+    Returns pairs (E,2) int64 with f < g, sorted lexicographically: the order `bend` uses. An
+    edge shared by more than two faces (non-manifold) yields every pair of its faces. With
+    return_shared, also returns shared (E,2): the two vertices of the mesh edge each pair shares.
+    """
+    f = as_int_array(faces, "faces", 2)
+    if f.shape[1] != 3:
+        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    pairs, shared = _core.dual_edges(f)
+    pairs = pairs.astype(np.int64)
+    if return_shared:
+        return pairs, shared.astype(np.int64)
+    return pairs
+
+
+def boundary_and_nonmanifold_edges(faces) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh edges used by exactly one face, and by more than two. Each (K,2) int64, a < b."""
+    f = as_int_array(faces, "faces", 2)
+    e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    uniq, counts = np.unique(e, axis=0, return_counts=True)
+    return uniq[counts == 1].astype(np.int64), uniq[counts > 2].astype(np.int64)

@@ -1,0 +1,25 @@
+"""Harmonic blending weights under bending stiffness (Popa et al. 2006, Eq. 1)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import _core
+from ._validate import as_anchors, as_int_array, as_stiffness
+
+
+def harmonic_weights(faces, anchors, bend=None) -> np.ndarray:
+    """Minimise sum_(f,g) bend_fg |w_f - w_g|^2 with anchor faces fixed to unit vectors.
+
+    faces: (m,3) int triangles. anchors: k non-empty, disjoint face index arrays.
+    bend: (E,) stiffness > 0 per dual edge in dual_edges(faces) order (default 1).
+    Returns W (m,k): rows sum to 1 and lie in [0,1] on faces an anchor reaches; faces in a
+    component no anchor reaches get all-zero rows (they keep the identity transform).
+    """
+    f = as_int_array(faces, "faces", 2)
+    if f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    m = f.shape[0]
+    pairs, _ = _core.dual_edges(f)
+    phi = np.ones(len(pairs)) if bend is None else as_stiffness(bend, len(pairs), "bend")
+    return _core.harmonic_weights(m, pairs, phi, as_anchors(anchors, m))

@@ -1,0 +1,42 @@
+#include "convert.hpp"
+#include "matdeform/deformer.hpp"
+
+namespace py = pybind11;
+using namespace matdeform;
+
+void bind_deformer(py::module_& m) {
+  py::class_<MaterialDeformer>(m, "MaterialDeformer")
+      .def(py::init([](const Vertices& vertices, const Faces& faces, const AnchorList& anchors,
+                       const Eigen::VectorXd& shear, const Eigen::VectorXd& bend,
+                       std::optional<std::vector<int>> pinned) {
+             py::gil_scoped_release release;
+             return std::make_unique<MaterialDeformer>(vertices, faces, anchors, shear, bend,
+                                                       std::move(pinned));
+           }),
+           py::arg("vertices"), py::arg("faces"), py::arg("anchors"), py::arg("shear"),
+           py::arg("bend"), py::arg("pinned"))
+      .def(
+          "deform",
+          [](const MaterialDeformer& self, const py_convert::DoubleArray& transforms,
+             std::optional<Vertices> pinned_positions) {
+            if (transforms.ndim() != 3 || transforms.shape(1) != transforms.shape(2) ||
+                (transforms.shape(1) != 3 && transforms.shape(1) != 4)) {
+              throw std::invalid_argument("transforms must have shape (k,3,3) or (k,4,4)");
+            }
+            const bool affine = transforms.shape(1) == 4;
+            const int s = affine ? 4 : 3;
+            std::vector<Eigen::Matrix4d> T(static_cast<size_t>(transforms.shape(0)),
+                                           Eigen::Matrix4d::Identity());
+            auto r = transforms.unchecked<3>();
+            for (size_t a = 0; a < T.size(); ++a)
+              for (int x = 0; x < s; ++x)
+                for (int y = 0; y < s; ++y) T[a](x, y) = r(static_cast<py::ssize_t>(a), x, y);
+            py::gil_scoped_release release;
+            return self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr);
+          },
+          py::arg("transforms"), py::arg("pinned_positions"))
+      .def_property_readonly("weights", &MaterialDeformer::weights)
+      .def_property_readonly("face_transforms", [](const MaterialDeformer& self) {
+        return py_convert::from_matrices3(self.face_transforms());
+      });
+}

@@ -1,0 +1,35 @@
+import numpy as np
+import pytest
+
+from matdeform import shapes
+
+
+def rotation(axis, angle):
+    """Rodrigues rotation matrix (3,3) about a unit-normalised axis, angle in radians."""
+    a = np.asarray(axis, dtype=float)
+    a = a / np.linalg.norm(a)
+    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+
+
+def affine(R, t=(0.0, 0.0, 0.0)):
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = t
+    return T
+
+
+@pytest.fixture
+def small_tube():
+    """A short closed tube (~200 faces) with anchor faces at both ends."""
+    v, f = shapes.tube(length=4.0, radius=0.6, n_around=8, n_along=10)
+    lo, hi = shapes.end_faces(v, f, fraction=0.01)
+    return v, f, lo, hi
+
+
+@pytest.fixture
+def long_bar():
+    """A long tube for distribution tests: 60 segments along x, length 12."""
+    v, f = shapes.tube(length=12.0, radius=0.5, n_around=12, n_along=60)
+    lo, hi = shapes.end_faces(v, f, fraction=0.001)
+    return v, f, lo, hi

@@ -1,0 +1,75 @@
+"""Dense numpy/scipy reference of Popa et al. 2006 Eq. 1-4, written independently of the core:
+full (n+m)-unknown system with explicit fourth vertices, scipy's logm/expm for Eq. 2."""
+
+import numpy as np
+import scipy.linalg as sla
+
+
+def dual_pairs(faces):
+    edges = {}
+    for fi, tri in enumerate(faces):
+        for k in range(3):
+            a, b = sorted((int(tri[k]), int(tri[(k + 1) % 3])))
+            edges.setdefault((a, b), []).append(fi)
+    pairs = set()
+    for fs in edges.values():
+        for i in range(len(fs)):
+            for j in range(i + 1, len(fs)):
+                pairs.add((min(fs[i], fs[j]), max(fs[i], fs[j])))
+    return np.array(sorted(pairs))
+
+
+def weights(m, pairs, phi, anchors):
+    k = len(anchors)
+    L = np.zeros((m, m))
+    for (f, g), w in zip(pairs, phi, strict=True):
+        L[f, f] += w
+        L[g, g] += w
+        L[f, g] -= w
+        L[g, f] -= w
+    fixed = np.concatenate(anchors)
+    W = np.zeros((m, k))
+    for a, fa in enumerate(anchors):
+        W[fa, a] = 1.0
+    free = np.setdiff1d(np.arange(m), fixed)
+    W[free] = np.linalg.solve(L[np.ix_(free, free)], -L[np.ix_(free, fixed)] @ W[fixed])
+    return W
+
+
+def blend(transforms3, W):
+    logs = [sla.logm(T).real for T in transforms3]
+    return np.array([sla.expm(sum(w * L for w, L in zip(row, logs, strict=True))) for row in W])
+
+
+def frame(a, b, c):
+    n = np.cross(b - a, c - a)
+    d = a + n / np.sqrt(np.linalg.norm(n))
+    return np.column_stack([b - a, c - a, d - a])
+
+
+def reposition(V, F, shear, T, fixed, fixed_pos):
+    """min sum psi_i |Vt_i V_i^-1 - T_i|_F^2 over n+m unknowns (fourth vertices explicit)."""
+    n, m = len(V), len(F)
+    N = n + m
+    rows = []
+    rhs = []
+    for i, (a, b, c) in enumerate(F):
+        E = np.linalg.inv(frame(V[a], V[b], V[c]))
+        D = np.array([[-1, -1, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+        G = D @ E  # (4,3): Vt E = X_loc @ G
+        idx = [a, b, c, n + i]
+        s = np.sqrt(shear[i])
+        for col in range(3):
+            row = np.zeros(N)
+            for j in range(4):
+                row[idx[j]] += s * G[j, col]
+            rows.append(row)
+            rhs.append(s * T[i][:, col])  # (3,) one value per coordinate
+    A = np.array(rows)
+    B = np.array(rhs)
+    free = np.setdiff1d(np.arange(N), fixed)
+    B = B - A[:, fixed] @ fixed_pos
+    X = np.zeros((N, 3))
+    X[fixed] = fixed_pos
+    X[free] = np.linalg.lstsq(A[:, free], B, rcond=None)[0]
+    return X[:n]

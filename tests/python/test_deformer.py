@@ -1,0 +1,211 @@
+import numpy as np
+import pytest
+import reference
+from conftest import affine, rotation
+
+import matdeform as md
+
+
+def _anchor_vertices(f, anchors):
+    return np.unique(np.concatenate([f[a].ravel() for a in anchors]))
+
+
+def test_identity_transforms_return_rest(small_tube):
+    v, f, lo, hi = small_tube
+    d = md.MaterialDeformer(v, f, [lo, hi])
+    np.testing.assert_allclose(d.deform(np.tile(np.eye(4), (2, 1, 1))), v, atol=1e-10)
+    np.testing.assert_allclose(d.deform(np.tile(np.eye(3), (2, 1, 1))), v, atol=1e-10)
+
+
+@pytest.mark.parametrize("angle", [0.3, 2.0, np.pi - 1e-6, np.pi])
+def test_common_rigid_transform_is_reproduced(small_tube, angle):
+    v, f, lo, hi = small_tube
+    rng = np.random.default_rng(5)
+    shear = rng.uniform(0.01, 1.0, len(f))
+    d = md.MaterialDeformer(v, f, [lo, hi], shear=shear)
+    R = rotation([1, -2, 0.5], angle)
+    t = np.array([3.0, -1.0, 2.0])
+    X = d.deform(np.stack([affine(R, t)] * 2))
+    np.testing.assert_allclose(X, v @ R.T + t, atol=1e-8)
+    # Scaled similarity too: every face gets s R, so the mesh is exactly scaled and rotated.
+    X = d.deform(np.stack([affine(1.7 * R, t)] * 2))
+    np.testing.assert_allclose(X, 1.7 * v @ R.T + t, atol=1e-8)
+
+
+def test_rotation_only_mode_keeps_vertex_mean(small_tube):
+    v, f, lo, hi = small_tube
+    d = md.MaterialDeformer(v, f, [lo, hi])
+    R = rotation([0, 1, 1], 1.1)
+    X = d.deform(np.stack([R, R]))
+    c = v.mean(axis=0)
+    np.testing.assert_allclose(X, (v - c) @ R.T + c, atol=1e-8)
+
+
+def test_result_is_covariant_under_rigid_motion_of_the_input(small_tube):
+    """Deforming a moved mesh with conjugated transforms gives the moved result."""
+    v, f, lo, hi = small_tube
+    T = np.stack([np.eye(4), affine(rotation([0, 0, 1], 1.2), [0.5, 1.0, 0.0])])
+    X = md.MaterialDeformer(v, f, [lo, hi]).deform(T)
+    G = affine(rotation([1, 1, 0], 0.8), [2.0, -3.0, 1.0])
+    v2 = v @ G[:3, :3].T + G[:3, 3]
+    T2 = np.stack([G @ Ta @ np.linalg.inv(G) for Ta in T])
+    X2 = md.MaterialDeformer(v2, f, [lo, hi]).deform(T2)
+    np.testing.assert_allclose(X2, X @ G[:3, :3].T + G[:3, 3], atol=1e-8)
+
+
+def test_matches_dense_reference_follow_mode(small_tube):
+    v, f, lo, hi = small_tube
+    rng = np.random.default_rng(7)
+    shear = rng.uniform(0.05, 2.0, len(f))
+    pairs = md.dual_edges(f)
+    bend = rng.uniform(0.05, 2.0, len(pairs))
+    mid = np.flatnonzero(np.abs(v[f].mean(axis=1)[:, 0] - 2.0) < 0.15)[:3]
+    anchors = [lo, hi, mid]
+    T = np.stack(
+        [
+            affine(rotation([0, 0, 1], 0.2), [0.0, 0.1, 0.0]),
+            affine(1.3 * rotation([1, 0.2, 0], 2.4), [0.5, 1.0, -0.3]),
+            affine(0.8 * rotation([0, 1, 0], -1.0), [0.0, 0.5, 0.2]),
+        ]
+    )
+    d = md.MaterialDeformer(v, f, anchors, shear=shear, bend=bend)
+    X = d.deform(T)
+
+    ref_pairs = reference.dual_pairs(f)
+    np.testing.assert_array_equal(ref_pairs, pairs)
+    W = reference.weights(len(f), ref_pairs, bend, anchors)
+    np.testing.assert_allclose(d.weights, W, atol=1e-10)
+    Tf = reference.blend(T[:, :3, :3], W)
+    np.testing.assert_allclose(d.face_transforms, Tf, atol=1e-9)
+    fixed = _anchor_vertices(f, anchors)
+    owner = {}
+    for a, fa in enumerate(anchors):
+        for vi in np.unique(f[fa]):
+            owner.setdefault(int(vi), []).append(a)
+    fixed_pos = np.array(
+        [np.mean([T[a, :3, :3] @ v[i] + T[a, :3, 3] for a in owner[int(i)]], axis=0) for i in fixed]
+    )
+    Xref = reference.reposition(v, f, shear, Tf, fixed, fixed_pos)
+    np.testing.assert_allclose(X, Xref, atol=1e-8)
+
+
+def test_matches_dense_reference_rotation_only_with_pins(small_tube):
+    v, f, lo, hi = small_tube
+    rng = np.random.default_rng(8)
+    shear = rng.uniform(0.1, 1.0, len(f))
+    pinned = np.unique(f[lo])
+    pinned_pos = v[pinned] + np.array([0.1, -0.2, 0.05])
+    T = np.stack([np.eye(3), 0.9 * rotation([0, 1, 0], 1.4)])
+    d = md.MaterialDeformer(v, f, [lo, hi], shear=shear, pinned=pinned)
+    X = d.deform(T, pinned_positions=pinned_pos)
+    W = reference.weights(len(f), reference.dual_pairs(f), md.bend_from_shear(f, shear), [lo, hi])
+    Tf = reference.blend(T, W)
+    Xref = reference.reposition(v, f, shear, Tf, pinned, pinned_pos)
+    np.testing.assert_allclose(X, Xref, atol=1e-8)
+
+
+def _face_rotation_about(v, X, f, axis):
+    """Signed rotation angle (rad) of each face's deformation about `axis`, from the geometry."""
+    T = md.deformation_gradients(v, X, f)
+    U, _, Vt = np.linalg.svd(T)
+    R = U @ Vt
+    logs = np.array([md.transform_log(r)[1] for r in R])
+    return logs @ np.asarray(axis, dtype=float)
+
+
+def _segment_profile(v, f, values, n_bins=30):
+    """Mean of a per-face value in bins along x (caps excluded)."""
+    x = v[f].mean(axis=1)[:, 0]
+    lo, hi = v[:, 0].min(), v[:, 0].max()
+    side = (x > lo + 1e-6) & (x < hi - 1e-6)
+    bins = np.linspace(lo, hi, n_bins + 1)
+    idx = np.clip(np.digitize(x, bins) - 1, 0, n_bins - 1)
+    centers = 0.5 * (bins[:-1] + bins[1:])
+    prof = np.array([values[side & (idx == b)].mean() for b in range(n_bins)])
+    return centers, prof
+
+
+@pytest.mark.parametrize("axis", [[0, 0, 1], [1, 0, 0]], ids=["bend", "twist"])
+def test_uniform_bar_spreads_rotation_evenly(long_bar, axis):
+    v, f, lo, hi = long_bar
+    theta = 1.2
+    d = md.MaterialDeformer(v, f, [lo, hi], pinned=np.unique(f[lo]))
+    X = d.deform(np.stack([np.eye(3), rotation(axis, theta)]))
+    ang = _face_rotation_about(v, X, f, axis)
+    x, prof = _segment_profile(v, f, ang)
+    L = v[:, 0].max()
+    # Even spread: the rotation grows linearly from 0 to theta along the bar.
+    dev = np.abs(prof - theta * x / L).max()
+    assert dev < 0.03 * theta, f"max deviation from linear {dev:.4f} rad"
+    assert abs(prof[-1] - theta * x[-1] / L) < 0.03 * theta
+
+
+@pytest.mark.parametrize("axis", [[0, 0, 1], [1, 0, 0]], ids=["bend", "twist"])
+def test_stiff_middle_third_stays_rigid(long_bar, axis):
+    v, f, lo, hi = long_bar
+    theta = 1.2
+    L = v[:, 0].max()
+    xc = v[f].mean(axis=1)[:, 0]
+    middle = (xc > L / 3) & (xc < 2 * L / 3)
+    shear = np.where(middle, 100.0, 1.0)
+    d = md.MaterialDeformer(v, f, [lo, hi], shear=shear, pinned=np.unique(f[lo]))
+    X = d.deform(np.stack([np.eye(3), rotation(axis, theta)]))
+    ang = _face_rotation_about(v, X, f, axis)
+    mid_spread = np.ptp(ang[middle])
+    soft1 = np.median(ang[(xc > 0.3 * L) & (xc < L / 3)]) - np.median(ang[xc < 0.03 * L])
+    soft2 = np.median(ang[xc > 0.97 * L]) - np.median(ang[(xc > 2 * L / 3) & (xc < 0.7 * L)])
+    # Series resistance with a 100x stiffer middle: the middle takes 1/201 of the turn.
+    assert mid_spread < 0.03 * theta, f"middle third turns by {mid_spread:.4f} rad"
+    assert soft1 > 0.4 * theta and soft2 > 0.4 * theta, (soft1, soft2)
+    # Compared with uniform stiffness the middle third is at least 10x more rigid.
+    Xu = md.MaterialDeformer(v, f, [lo, hi], pinned=np.unique(f[lo])).deform(
+        np.stack([np.eye(3), rotation(axis, theta)])
+    )
+    uni = _face_rotation_about(v, Xu, f, axis)
+    assert np.ptp(uni[middle]) > 10 * mid_spread
+
+
+def test_weights_partition_of_unity_and_anchor_rows(small_tube):
+    v, f, lo, hi = small_tube
+    d = md.MaterialDeformer(v, f, [lo, hi])
+    W = d.weights
+    assert W.shape == (len(f), 2)
+    np.testing.assert_allclose(W.sum(axis=1), 1.0, atol=1e-12)
+    assert W.min() >= -1e-14 and W.max() <= 1 + 1e-14
+    np.testing.assert_array_equal(W[lo], [[1.0, 0.0]] * len(lo))
+    np.testing.assert_array_equal(W[hi], [[0.0, 1.0]] * len(hi))
+
+
+def test_disconnected_part_without_anchor_stays_at_rest(small_tube):
+    v, f, lo, hi = small_tube
+    v2 = np.vstack([v, v + [0.0, 5.0, 0.0]])
+    f2 = np.vstack([f, f + len(v)])
+    d = md.MaterialDeformer(v2, f2, [lo, hi])
+    T = np.stack([np.eye(4), affine(rotation([0, 0, 1], 1.0), [0, 1, 0])])
+    X = d.deform(T)
+    assert np.isfinite(X).all()
+    np.testing.assert_allclose(X[len(v) :], v2[len(v) :], atol=1e-10)
+    np.testing.assert_allclose(d.weights[len(f) :], 0.0)
+    X3 = d.deform(T[:, :3, :3])  # rotation-only: free parts keep their centroid
+    np.testing.assert_allclose(X3[len(v) :], v2[len(v) :], atol=1e-10)
+
+
+def test_degenerate_face_gives_finite_output(small_tube):
+    v, f, lo, hi = small_tube
+    # Collapse one side face to zero area: it drops out, neighbours place its vertices.
+    v2 = v.copy()
+    tri = f[len(f) // 3]
+    v2[tri[2]] = 0.5 * (v2[tri[0]] + v2[tri[1]])
+    d = md.MaterialDeformer(v2, f, [lo, hi])
+    X = d.deform(np.stack([np.eye(4), affine(rotation([0, 1, 0], 0.7))]))
+    assert np.isfinite(X).all()
+
+
+def test_per_vertex_bend_is_averaged_over_shared_edges(small_tube):
+    v, f, lo, hi = small_tube
+    s = np.linspace(0.1, 1.0, len(v))
+    d1 = md.MaterialDeformer(v, f, [lo, hi], bend=s)
+    d2 = md.MaterialDeformer(v, f, [lo, hi], bend=md.bend_from_vertex(f, s))
+    np.testing.assert_allclose(d1.weights, d2.weights, atol=1e-14)
+    pairs, shared = md.dual_edges(f, return_shared=True)
+    np.testing.assert_allclose(md.bend_from_vertex(f, s), s[shared].mean(axis=1))

@@ -1,0 +1,33 @@
+import numpy as np
+from conftest import rotation
+
+import matdeform as md
+from matdeform import shapes
+
+
+def test_dual_edges_closed_tube_counts():
+    v, f = shapes.tube(n_around=8, n_along=5)
+    pairs, shared = md.dual_edges(f, return_shared=True)
+    # Closed manifold: every mesh edge is shared by exactly two faces -> E = 3m/2.
+    assert len(pairs) == 3 * len(f) // 2
+    assert (pairs[:, 0] < pairs[:, 1]).all()
+    assert (np.diff(pairs[:, 0]) >= 0).all()
+    for (a, b), (p, q) in zip(pairs, shared, strict=True):
+        assert {p, q} <= set(f[a]) and {p, q} <= set(f[b])
+    boundary, nonmanifold = md.boundary_and_nonmanifold_edges(f)
+    assert len(boundary) == 0 and len(nonmanifold) == 0
+
+
+def test_deformation_gradients_of_similarity():
+    v, f = shapes.tube(n_around=6, n_along=4)
+    A = 2.0 * rotation([1, 2, 3], 0.9)
+    T = md.deformation_gradients(v, v @ A.T + 1.0, f)
+    np.testing.assert_allclose(T, np.broadcast_to(A, T.shape), atol=1e-12)
+
+
+def test_obj_round_trip(tmp_path):
+    v, f = shapes.tube(n_around=5, n_along=3)
+    md.write_obj(tmp_path / "t.obj", v, f)
+    v2, f2 = md.read_obj(tmp_path / "t.obj")
+    np.testing.assert_allclose(v2, v, atol=1e-8)
+    np.testing.assert_array_equal(f2, f)
