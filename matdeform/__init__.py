@@ -5,6 +5,7 @@ numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never 
 
 from .deformer import MaterialDeformer
 from .frames import deformation_gradients
+from .learn import learn_distortions, learn_stiffness, stiffness_from_distortion
 from .mesh import boundary_and_nonmanifold_edges, dual_edges
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
@@ -22,9 +23,12 @@ __all__ = [
     "deformation_gradients",
     "dual_edges",
     "harmonic_weights",
+    "learn_distortions",
+    "learn_stiffness",
     "polar_decompose",
     "read_obj",
     "shear_from_vertex",
+    "stiffness_from_distortion",
     "transform_exp",
     "transform_log",
     "write_obj",

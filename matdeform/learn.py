@@ -18,31 +18,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import _core
+from ._validate import as_faces, as_vertices
+from .mesh import dual_edges
 
 __all__ = ["learn_distortions", "learn_stiffness", "stiffness_from_distortion"]
 
 _FRAMES = ("rest", "world")
-
-
-def _vertices(name: str, x, n: int | None = None) -> np.ndarray:
-    a = np.asarray(x, dtype=np.float64)
-    if a.ndim != 2 or a.shape[1] != 3 or (n is not None and a.shape[0] != n):
-        want = f"({n},3)" if n is not None else "(n,3)"
-        raise ValueError(f"{name}: expected shape {want}, got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name}: contains NaN or infinity")
-    return np.ascontiguousarray(a)
-
-
-def _faces(faces, n: int) -> np.ndarray:
-    f = np.asarray(faces)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected shape (m,3), got {f.shape}")
-    if f.size and not np.issubdtype(f.dtype, np.integer):
-        raise ValueError(f"faces: expected integer indices, got dtype {f.dtype}")
-    if f.size and (f.min() < 0 or f.max() >= n):
-        raise ValueError(f"faces: indices must lie in [0, {n})")
-    return np.ascontiguousarray(f, dtype=np.int32)
 
 
 def _poses(poses, n: int) -> list[np.ndarray]:
@@ -56,7 +37,7 @@ def _poses(poses, n: int) -> list[np.ndarray]:
         raise ValueError("poses: expected an (l,n,3) array or a sequence of (n,3) arrays")
     if not items:
         raise ValueError("poses: need at least one pose")
-    return [_vertices(f"poses[{s}]", p, n) for s, p in enumerate(items)]
+    return [as_vertices(p, f"poses[{s}]", rows=n) for s, p in enumerate(items)]
 
 
 def learn_distortions(
@@ -79,12 +60,12 @@ def learn_distortions(
 
     Faces collapsed to zero area in a pose are skipped for that pose.
     """
-    v = _vertices("vertices", vertices)
-    f = _faces(faces, v.shape[0])
+    v = as_vertices(vertices)
+    f = as_faces(faces, v.shape[0])
     p = _poses(poses, v.shape[0])
     if frame not in _FRAMES:
         raise ValueError(f"frame: expected one of {_FRAMES}, got {frame!r}")
-    pairs = np.ascontiguousarray(_core.dual_edges(f), dtype=np.int32)
+    pairs = np.ascontiguousarray(dual_edges(f), dtype=np.int32)
     bend, shear = _core.learn_distortions(v, f, pairs, p, bool(anisotropic), frame)
     bend = np.asarray(bend)
     return (bend if anisotropic else bend[:, 0].copy()), np.asarray(shear)

@@ -10,6 +10,7 @@ void bind_transforms(py::module_& m);
 void bind_weights(py::module_& m);
 void bind_stiffness(py::module_& m);
 void bind_deformer(py::module_& m);
+void bind_learn(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "Material-aware mesh deformation core (C++)";
@@ -19,4 +20,5 @@ PYBIND11_MODULE(_core, m) {
   bind_weights(m);
   bind_stiffness(m);
   bind_deformer(m);
+  bind_learn(m);
 }
