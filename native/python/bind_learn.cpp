@@ -37,6 +37,15 @@ void bind_learn(py::module_& m) {
       py::arg("rest"), py::arg("faces"), py::arg("pairs"), py::arg("poses"), py::arg("anisotropic"),
       py::arg("frame"));
   m.def(
+      "smooth_distortions",
+      [](const md::RowMatrix& bend, const Eigen::VectorXd& shear, const md::IndexPairs& pairs,
+         int passes) {
+        md::Distortions d{bend, shear};
+        d = md::smooth_distortions(d, static_cast<int>(shear.size()), pairs, passes);
+        return py::make_tuple(d.bend, d.shear);
+      },
+      py::arg("bend"), py::arg("shear"), py::arg("pairs"), py::arg("passes"));
+  m.def(
       "stiffness_from_distortion",
       [](const md::RowMatrix& d, double eps, double clamp_percent, double sharpness) {
         md::StiffnessMap map;

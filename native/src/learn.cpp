@@ -159,10 +159,56 @@ RowMatrix stiffness_from_distortion(const RowMatrix& d, const StiffnessMap& map)
   return out;
 }
 
+Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexPairs& pairs,
+                               int passes) {
+  if (passes < 0) throw std::invalid_argument("smoothing passes must be >= 0");
+  if (d.shear.size() != num_faces || d.bend.rows() != pairs.rows()) {
+    throw std::invalid_argument("distortions do not match num_faces / pairs");
+  }
+  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= num_faces)) {
+    throw std::invalid_argument("pairs: face index out of range");
+  }
+  if (passes == 0) return d;
+  const Eigen::Index m = num_faces, num_edges = pairs.rows(), cols = d.bend.cols();
+  // Face values: column 0..cols-1 bending, column cols shear; smoothed together.
+  RowMatrix x = RowMatrix::Zero(m, cols + 1);
+  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
+  for (Eigen::Index e = 0; e < num_edges; ++e) {
+    for (int k = 0; k < 2; ++k) {
+      x.row(pairs(e, k)).head(cols) += d.bend.row(e);
+      degree(pairs(e, k)) += 1.0;
+    }
+  }
+  for (Eigen::Index f = 0; f < m; ++f) {
+    if (degree(f) > 0) x.row(f).head(cols) /= degree(f);
+  }
+  x.col(cols) = d.shear;
+  RowMatrix next(m, cols + 1);
+  for (int p = 0; p < passes; ++p) {
+    next = x;
+    for (Eigen::Index e = 0; e < num_edges; ++e) {
+      next.row(pairs(e, 0)) += x.row(pairs(e, 1));
+      next.row(pairs(e, 1)) += x.row(pairs(e, 0));
+    }
+    for (Eigen::Index f = 0; f < m; ++f) next.row(f) /= 1.0 + degree(f);
+    x.swap(next);
+  }
+  Distortions out;
+  out.shear = x.col(cols);
+  out.bend.resize(num_edges, cols);
+  for (Eigen::Index e = 0; e < num_edges; ++e) {
+    out.bend.row(e) = 0.5 * (x.row(pairs(e, 0)).head(cols) + x.row(pairs(e, 1)).head(cols));
+  }
+  return out;
+}
+
 LearnedStiffness learn_stiffness(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
                                  const std::vector<Vertices>& poses, bool anisotropic,
-                                 const StiffnessMap& map, AxisFrame frame) {
-  const Distortions d = learn_distortions(rest, faces, pairs, poses, anisotropic, frame);
+                                 const StiffnessMap& map, AxisFrame frame, int smoothing_passes) {
+  if (smoothing_passes < 0) throw std::invalid_argument("smoothing passes must be >= 0");
+  const Distortions d =
+      smooth_distortions(learn_distortions(rest, faces, pairs, poses, anisotropic, frame),
+                         static_cast<int>(faces.rows()), pairs, smoothing_passes);
   LearnedStiffness out;
   out.bend = stiffness_from_distortion(d.bend, map);
   out.shear = stiffness_from_distortion(d.shear, map);

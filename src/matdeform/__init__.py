@@ -5,7 +5,12 @@ numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never 
 
 from .deformer import MaterialDeformer
 from .frames import deformation_gradients
-from .learn import learn_distortions, learn_stiffness, stiffness_from_distortion
+from .learn import (
+    learn_distortions,
+    learn_stiffness,
+    smooth_distortions,
+    stiffness_from_distortion,
+)
 from .mesh import boundary_and_nonmanifold_edges, dual_edges
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
@@ -28,6 +33,7 @@ __all__ = [
     "polar_decompose",
     "read_obj",
     "shear_from_vertex",
+    "smooth_distortions",
     "stiffness_from_distortion",
     "transform_exp",
     "transform_log",

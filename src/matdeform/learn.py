@@ -18,10 +18,15 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_vertices
+from ._validate import as_faces, as_int_array, as_vertices
 from .mesh import dual_edges
 
-__all__ = ["learn_distortions", "learn_stiffness", "stiffness_from_distortion"]
+__all__ = [
+    "learn_distortions",
+    "learn_stiffness",
+    "smooth_distortions",
+    "stiffness_from_distortion",
+]
 
 _FRAMES = ("rest", "world")
 
@@ -69,6 +74,37 @@ def learn_distortions(
     bend, shear = _core.learn_distortions(v, f, pairs, p, bool(anisotropic), frame)
     bend = np.asarray(bend)
     return (bend if anisotropic else bend[:, 0].copy()), np.asarray(shear)
+
+
+def smooth_distortions(faces, bend, shear, passes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Spread distortions over the face graph (regional instead of per-edge flexibility).
+
+    Args:
+        faces: (m,3) int triangles (defines the dual edges).
+        bend: (E,) or (E,k) per dual edge in ``dual_edges(faces)`` order.
+        shear: (m,) per face.
+        passes: >= 0. Each pass replaces every face value by the mean of itself and its dual-edge
+            neighbours; bending is moved to faces first (mean over the face's dual edges) and back
+            to edges at the end (mean of the two faces). 0 returns copies of the input.
+
+    Returns:
+        bend with the shape given, shear (m,).
+    """
+    f = as_int_array(faces, "faces", 2)
+    if f.shape[1] != 3:
+        raise ValueError(f"faces: expected shape (m,3), got {f.shape}")
+    pairs = np.ascontiguousarray(dual_edges(f), dtype=np.int32)
+    b = np.asarray(bend, dtype=np.float64)
+    s = np.asarray(shear, dtype=np.float64)
+    if b.ndim not in (1, 2) or b.shape[0] != len(pairs):
+        raise ValueError(f"bend: expected shape ({len(pairs)},) or ({len(pairs)},k), got {b.shape}")
+    if s.shape != (len(f),):
+        raise ValueError(f"shear: expected shape ({len(f)},), got {s.shape}")
+    if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
+        raise ValueError(f"passes: expected an integer >= 0, got {passes!r}")
+    b2 = np.ascontiguousarray(b.reshape(len(pairs), -1))
+    sb, ss = _core.smooth_distortions(b2, np.ascontiguousarray(s), pairs, int(passes))
+    return np.asarray(sb).reshape(b.shape), np.asarray(ss)
 
 
 def stiffness_from_distortion(
@@ -120,12 +156,15 @@ def learn_stiffness(
     clamp_percent: float = 1.0,
     sharpness: float = 0.0,
     frame: str = "rest",
+    smoothing: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Learn bending and shearing stiffness from example poses (paper Sec. 6).
 
     Args:
         vertices: (n,3) reference positions; faces: (m,3) int; poses: (l,n,3) or l x (n,3).
         anisotropic, frame: see :func:`learn_distortions`.
+        smoothing: passes of :func:`smooth_distortions` applied to the distortions before
+            mapping (0 = the paper's per-edge values).
         eps, clamp_percent, sharpness: see :func:`stiffness_from_distortion`; the same map is
             applied to bend and shear, each normalised by its own maximum.
 
@@ -134,8 +173,12 @@ def learn_stiffness(
             anisotropic; values in [eps, 1], ready for ``MaterialDeformer(bend=...)``.
         shear: (m,) per face in [eps, 1], ready for ``MaterialDeformer(shear=...)``.
     """
+    if isinstance(smoothing, bool) or not isinstance(smoothing, (int, np.integer)) or smoothing < 0:
+        raise ValueError(f"smoothing: expected an integer >= 0, got {smoothing!r}")
     bend_d, shear_d = learn_distortions(
         vertices, faces, poses, anisotropic=anisotropic, frame=frame
     )
+    if smoothing:
+        bend_d, shear_d = smooth_distortions(faces, bend_d, shear_d, smoothing)
     kw = dict(eps=eps, clamp_percent=clamp_percent, sharpness=sharpness)
     return stiffness_from_distortion(bend_d, **kw), stiffness_from_distortion(shear_d, **kw)

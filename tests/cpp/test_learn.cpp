@@ -142,6 +142,54 @@ TEST_F(HingeTest, InvariantToRigidMotionOfEachPose) {
   EXPECT_LT((aa.bend - bb.bend).cwiseAbs().maxCoeff(), 1e-12);
 }
 
+TEST_F(HingeTest, SmoothingSpreadsAroundTheHinges) {
+  md::StiffnessMap map;
+  map.clamp_percent = 0.0;
+  const md::LearnedStiffness s =
+      md::learn_stiffness(V, F, dual.pairs, poses, false, map, md::AxisFrame::kRest, 2);
+  Eigen::Index argmin = 0;
+  const double lowest = s.bend.col(0).minCoeff(&argmin);
+  EXPECT_NEAR(lowest, 0.01, 1e-12);  // the smoothed maximum still maps to eps
+  // ... and it sits next to the larger fold at x = 7, not at x = 3 or far away.
+  const double x = 0.5 * (V(dual.shared(argmin, 0), 0) + V(dual.shared(argmin, 1), 0));
+  EXPECT_GE(x, 6.0);
+  EXPECT_LE(x, 8.0);
+  int softened = 0;
+  for (Eigen::Index e = 0; e < s.bend.rows(); ++e) {
+    const double xe = std::max(V(dual.shared(e, 0), 0), V(dual.shared(e, 1), 0));
+    if (xe <= 1.0) {
+      EXPECT_DOUBLE_EQ(s.bend(e, 0), 1.0);  // out of reach of two passes
+    }
+    softened += s.bend(e, 0) < 1.0;
+  }
+  EXPECT_GT(softened, 12);  // more than the 6 hinge edges are now flexible
+}
+
+TEST(SmoothDistortions, ClosedFormOnTwoFacesAndConstantsPreserved) {
+  md::IndexPairs pairs(1, 2);
+  pairs << 0, 1;
+  md::Distortions d;
+  d.bend = md::RowMatrix::Constant(1, 3, 0.5);
+  d.shear = Eigen::Vector2d(1.0, 3.0);
+  const md::Distortions s = md::smooth_distortions(d, 2, pairs, 1);
+  EXPECT_NEAR(s.shear(0), 2.0, 1e-15);
+  EXPECT_NEAR(s.shear(1), 2.0, 1e-15);
+  EXPECT_NEAR((s.bend.array() - 0.5).abs().maxCoeff(), 0.0, 1e-15);
+
+  md::Vertices V;
+  md::Faces F;
+  make_grid(5, 4, &V, &F);
+  const md::IndexPairs grid_pairs = md::dual_edges(F).pairs;
+  md::Distortions c;
+  c.bend = md::RowMatrix::Constant(grid_pairs.rows(), 1, 0.25);
+  c.shear = Eigen::VectorXd::Constant(F.rows(), 0.75);
+  const md::Distortions cs = md::smooth_distortions(c, static_cast<int>(F.rows()), grid_pairs, 7);
+  EXPECT_LT((cs.bend.array() - 0.25).abs().maxCoeff(), 1e-14);
+  EXPECT_LT((cs.shear.array() - 0.75).abs().maxCoeff(), 1e-14);
+  EXPECT_THROW(md::smooth_distortions(c, static_cast<int>(F.rows()), grid_pairs, -1),
+               std::invalid_argument);
+}
+
 TEST(LearnShear, UniformStretchMatchesClosedForm) {
   md::Vertices V;
   md::Faces F;

@@ -134,6 +134,22 @@ def test_map_matches_numpy_percentile_and_stays_in_range():
     np.testing.assert_allclose(s3, 0.01 + 0.99 * (1 - np.minimum(d3, top) / top), atol=1e-13)
 
 
+def test_smoothing_keeps_constants_and_spreads_around_the_fold(hinge):
+    v, f, poses = hinge
+    e = len(md.dual_edges(f))
+    b, s = md.smooth_distortions(f, np.full((e, 3), 0.25), np.full(len(f), 0.75), 5)
+    np.testing.assert_allclose(b, 0.25, atol=1e-14)
+    np.testing.assert_allclose(s, 0.75, atol=1e-14)
+    bend, _ = md.learn_stiffness(v, f, poses, clamp_percent=0, smoothing=2)
+    pairs = md.dual_edges(f)
+    shared = [np.intersect1d(f[g], f[h]) for g, h in pairs]
+    x = np.array([v[sh, 0].mean() for sh in shared])
+    assert bend.min() == pytest.approx(0.01)
+    assert 6 <= x[np.argmin(bend)] <= 8  # next to the larger fold (x = 7)
+    assert np.all(bend[np.array([v[sh, 0].max() for sh in shared]) <= 1] == 1.0)
+    assert np.sum(bend < 1) > 12  # more than the 6 hinge edges
+
+
 def test_array_and_list_of_poses_agree(hinge):
     v, f, poses = hinge
     a = md.learn_stiffness(v, f, np.stack(poses))
@@ -153,6 +169,7 @@ def test_array_and_list_of_poses_agree(hinge):
         (dict(frame="body"), "frame"),
         (dict(eps=0.0), "eps"),
         (dict(clamp_percent=100.0), "clamp_percent"),
+        (dict(smoothing=-1), "smoothing"),
     ],
 )
 def test_bad_input_names_the_argument(hinge, kwargs, match):

@@ -65,14 +65,24 @@ struct StiffnessMap {
 // Throws std::invalid_argument for negative or non-finite entries or bad parameters.
 RowMatrix stiffness_from_distortion(const RowMatrix& d, const StiffnessMap& map);
 
+// Spreads distortions over the face graph (regional rather than per-edge flexibility; the
+// per-edge maxima are noisy at the mesh scale). Each pass replaces every face value by the mean
+// of itself and its dual-edge neighbours. Bending is moved to faces first (mean over the face's
+// dual edges, per column) and back to edges at the end (mean of the edge's two faces).
+// passes == 0 returns d unchanged. num_faces = m, pairs (E,2) as in learn_distortions.
+Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexPairs& pairs,
+                               int passes);
+
 struct LearnedStiffness {
   RowMatrix bend;         // (E,1) or (E,3), in [eps, 1]
   Eigen::VectorXd shear;  // (m,), in [eps, 1]
 };
 
-// Both stages with the same map for bend and shear.
+// learn_distortions, then smooth_distortions (smoothing_passes >= 0), then the same map for bend
+// and shear (each normalised by its own maximum).
 LearnedStiffness learn_stiffness(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
                                  const std::vector<Vertices>& poses, bool anisotropic,
-                                 const StiffnessMap& map, AxisFrame frame = AxisFrame::kRest);
+                                 const StiffnessMap& map, AxisFrame frame = AxisFrame::kRest,
+                                 int smoothing_passes = 0);
 
 }  // namespace matdeform
