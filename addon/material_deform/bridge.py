@@ -18,6 +18,7 @@ OUTPUT_KEY = "Material Deform"
 BAKE_PREFIX = "MD Bake "
 SHEAR_ATTR = "md_shear_stiffness"
 BEND_ATTR = "md_bend_stiffness"
+BEND_AXES_ATTR = "md_bend_stiffness_xyz"  # anisotropic: one bending stiffness per axis x, y, z
 DISPLAY_ATTR = "md_stiffness_display"
 
 
@@ -154,6 +155,54 @@ def read_float_attribute(mesh, name, domain, n):
     if attr is None or attr.domain != domain or attr.data_type != "FLOAT" or len(attr.data) != n:
         return None
     return _get(attr.data, "value", n, np.float32).astype(np.float64)
+
+
+def write_vector_attribute(mesh, name, domain, values) -> None:
+    attr = mesh.attributes.get(name)
+    if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT_VECTOR"):
+        mesh.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = mesh.attributes.new(name, "FLOAT_VECTOR", domain)
+    attr.data.foreach_set("vector", np.asarray(values, dtype=np.float32).ravel())
+    mesh.update()
+
+
+def read_vector_attribute(mesh, name, domain, n):
+    attr = mesh.attributes.get(name)
+    if (
+        attr is None
+        or attr.domain != domain
+        or attr.data_type != "FLOAT_VECTOR"
+        or len(attr.data) != n
+    ):
+        return None
+    return _get(attr.data, "vector", n, np.float32, 3).astype(np.float64)
+
+
+def set_vertex_group_weights(obj, name, weights) -> str:
+    """Create or overwrite a vertex group with one weight per vertex (all vertices)."""
+    vg = obj.vertex_groups.get(name)
+    if vg is None:
+        vg = obj.vertex_groups.new(name=name)
+    w = np.clip(np.asarray(weights, dtype=np.float64), 0.0, 1.0)
+    for i, wi in enumerate(w.tolist()):
+        vg.add([i], wi, "REPLACE")
+    return vg.name
+
+
+def shape_key_info(obj) -> list[tuple[str, bool, bool]]:
+    """(name, muted, is the reference key) of every shape key, in list order."""
+    keys = obj.data.shape_keys
+    if keys is None:
+        return []
+    ref = keys.reference_key
+    return [(kb.name, bool(kb.mute), kb == ref) for kb in keys.key_blocks]
+
+
+def shape_key_positions(obj, name) -> np.ndarray:
+    """Absolute coordinates stored in a shape key (float64)."""
+    return read_key(obj.data.shape_keys.key_blocks[name]).astype(np.float64)
 
 
 def write_face_colors(mesh, name, face_rgba, loop_poly) -> None:

@@ -66,6 +66,33 @@ class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Oper
         return {"FINISHED"}
 
 
+class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator):
+    """Learn bending and shear stiffness from the shape keys (example poses of the Basis): all
+    unmuted keys whose name contains the Keys filter. Writes the stiffness attributes and the
+    paint vertex groups, so you can refine the result by painting"""
+
+    bl_idname = "mesh.material_deform_learn_stiffness"
+    bl_label = "Learn from Shape Keys"
+
+    def execute(self, context):
+        from . import material_setup
+
+        obj = _mesh_object(context)
+        try:
+            with bridge.object_mode(context, obj), _Progress(context) as progress:
+                res = material_setup.learn_from_shape_keys(obj, progress)
+                reason = session.full_check(obj, context.scene)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        msg = (
+            f"Learned from {len(res['keys'])} shape key(s); bending {res['phi'].min():.3g} .. "
+            f"{res['phi'].max():.3g}; groups: {', '.join(res['groups'].values())}"
+        )
+        self.report({"WARNING"} if reason else {"INFO"}, reason or msg)
+        return {"FINISHED"}
+
+
 class MESH_OT_material_deform_show_stiffness(_MeshOperator, bpy.types.Operator):
     """Show the stored stiffness as colours (blue = flexible, red = stiff)"""
 
@@ -281,6 +308,7 @@ classes = (
     MESH_OT_material_deform_update,
     MESH_OT_material_deform_reset,
     MESH_OT_material_deform_bake,
+    MESH_OT_material_deform_learn_stiffness,
 )
 
 

@@ -24,6 +24,12 @@ def _anchor_changed(self, _context):
 IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
 
 
+def _material_changed(self, _context):
+    from . import session
+
+    session.mark_stale(self.id_data, "Anisotropy or region changed since bind - click Bind again")
+
+
 def _is_empty(_self, obj):
     return obj.type == "EMPTY"
 
@@ -80,6 +86,32 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
         default=3.0,
         min=0.5,
         max=8.0,
+    )
+    anisotropic: BoolProperty(
+        name="Anisotropic",
+        description="One bending stiffness per rotation axis, painted in the groups "
+        "'<group> X', '<group> Y', '<group> Z' (or the R, G, B channels of the color attribute)",
+        default=False,
+        update=_material_changed,
+    )
+    axes_empty: PointerProperty(
+        name="Axes",
+        type=bpy.types.Object,
+        poll=_is_empty,
+        description="Empty whose orientation gives the anisotropy axes (default: the object's "
+        "local axes). Parent it to the mesh object so it moves with it",
+        update=_material_changed,
+    )
+    region_group: StringProperty(
+        name="Region",
+        description="Vertex group of the region of interest: only polygons whose vertices are "
+        "all in it deform, its border stays at rest, the rest is untouched (empty = whole mesh)",
+        update=_material_changed,
+    )
+    learn_filter: StringProperty(
+        name="Keys",
+        description="Learn from Shape Keys uses the unmuted shape keys whose name contains this "
+        "text (empty = all)",
     )
 
     bound: BoolProperty(name="Bound", default=False, options={"HIDDEN"})

@@ -28,6 +28,8 @@ class Inputs:
     used: np.ndarray | None  # vertices kept after dropping loose ones
     tris_c: np.ndarray
     fp: tuple
+    region: np.ndarray | None = None  # triangles of the region of interest (paper Sec. 7)
+    axes: np.ndarray | None = None  # anisotropy axes (3,3) when bend is (E,3)
 
 
 @dataclass
@@ -80,6 +82,10 @@ def stiffness_from_paint(obj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     them as mesh attributes. Returns (face paint, psi, phi)."""
     s = settings(obj)
     mesh = obj.data
+    if s.anisotropic:
+        from . import material_setup
+
+        return material_setup.anisotropic_from_paint(obj)
     if len(mesh.polygons) == 0:
         raise BindError("Mesh has no faces")
     if s.stiffness_source == "VERTEX_GROUP":
@@ -181,11 +187,18 @@ def gather(obj, scene) -> Inputs:
         anchor_faces.append(faces)
         modes.append(anc.mode)
 
+    from . import material_setup as ms  # anisotropy, region of interest (issue 4)
+
+    region = ms.region_faces(obj, a)
+    if region is not None:
+        ms.check_anchors_in_region(region, anchor_faces, [anc.name for anc in s.anchors])
     md = _core()
     dual = np.asarray(md.dual_edges(a.tris), dtype=np.int64).reshape(-1, 2)
     comp = am.face_components(len(a.tris), dual)
     anchored = np.unique(comp[np.concatenate(anchor_faces)])
     free = ~np.isin(comp, anchored)
+    if region is not None:  # only the region is solved: faces outside never move
+        free &= np.isin(np.arange(len(a.tris)), region)
     if free.any():
         raise BindError(
             f"{int(np.unique(a.tri_poly[free]).size)} face(s) are in a part of the mesh with no "
@@ -203,16 +216,25 @@ def gather(obj, scene) -> Inputs:
             if not np.all(np.isfinite(phi)) or (phi <= 0).any():
                 raise BindError("Bending attribute has values <= 0: run 'Stiffness from Paint'")
             bend = sm.dual_edge_bend(a.tris, dual, a.tri_poly, psi, a.edge_verts, phi)
+    axes = None
+    if s.anisotropic:
+        bend = ms.anisotropic_bend(obj, a, dual)
+        axes = ms.axes(obj)
 
     used, tris_c = am.compact(a.tris, len(a.rest))
     fp = (
         am.fingerprint(a.tris, bridge.rest_positions_f32(mesh), a.tri_poly),
         am.fingerprint(
-            *[x for f, m, n in zip(anchor_faces, modes, names, strict=True) for x in (n, m, f)]
+            *[x for f, m, n in zip(anchor_faces, modes, names, strict=True) for x in (n, m, f)],
+            "whole mesh" if region is None else region,
         ),
-        am.fingerprint("uniform" if shear is None else shear, "default" if bend is None else bend),
+        am.fingerprint(
+            "uniform" if shear is None else shear,
+            "default" if bend is None else bend,
+            "local axes" if axes is None else np.round(axes, 6),
+        ),
     )
-    return Inputs(a, anchor_faces, modes, shear, bend, used, tris_c, fp)
+    return Inputs(a, anchor_faces, modes, shear, bend, used, tris_c, fp, region, axes)
 
 
 def _core():
@@ -232,7 +254,14 @@ def _build(inp: Inputs, mesh) -> Entry:
         pinned = remap[pinned]
     try:
         d = md.MaterialDeformer(
-            verts, inp.tris_c, inp.anchor_faces, shear=inp.shear, bend=inp.bend, pinned=pinned
+            verts,
+            inp.tris_c,
+            inp.anchor_faces,
+            shear=inp.shear,
+            bend=inp.bend,
+            pinned=pinned,
+            region=inp.region,
+            axes=inp.axes,
         )
     except (ValueError, RuntimeError) as exc:
         raise BindError(f"Solver rejected the mesh: {exc}") from exc
@@ -244,6 +273,7 @@ def _build(inp: Inputs, mesh) -> Entry:
         used=inp.used,
         use_4x4=use_4x4,
         n_anchors=len(inp.anchor_faces),
+        extra={"axes": inp.axes},
     )
 
 
@@ -253,7 +283,7 @@ def _stored_fp(obj) -> tuple:
 
 
 def _diff_reason(stored, current) -> str:
-    what = ("mesh (topology or rest shape)", "anchors", "stiffness")
+    what = ("mesh (topology or rest shape)", "anchors or region", "stiffness or axes")
     changed = [w for w, a, b in zip(what, stored, current, strict=True) if a != b]
     return "Changed since bind: " + ", ".join(changed) + " - click Bind again"
 
@@ -386,6 +416,13 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         _cache.pop(key, None)
         raise BindError(_stale[key])
     ancs = _anchor_empties(obj, scene)
+    if entry.extra.get("axes") is not None:
+        from . import material_setup
+
+        now_axes = material_setup.axes(obj, depsgraph)
+        if now_axes is None or not np.allclose(now_axes, entry.extra["axes"], atol=1e-6):
+            mark_stale(obj, "Axes Empty changed since bind - click Bind again")
+            raise BindError("Axes Empty changed since bind - click Bind again")
     if len(ancs) != entry.n_anchors:
         raise BindError("Anchors changed since bind - click Bind again")
     mats = [bridge.world_matrix(a.empty, depsgraph) for a in ancs]

@@ -43,9 +43,19 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
         box.prop(s, "stiffness_span")
         lo, hi = stiffness_range(s.stiffness_span)
         box.label(text=f"paint 0 = {lo:.0e} (flexible)  ..  1 = {hi:g} (stiff)")
+        box.prop(s, "anisotropic")
+        if s.anisotropic:
+            box.prop(s, "axes_empty")
+            if s.stiffness_source == "VERTEX_GROUP":
+                box.label(text=f"paint '{s.stiffness_group} X' / Y / Z per rotation axis")
+            else:
+                box.label(text="paint R / G / B per rotation axis x / y / z")
         row = box.row(align=True)
         row.operator("mesh.material_deform_stiffness_from_paint")
         row.operator("mesh.material_deform_show_stiffness", text="Show", icon="HIDE_OFF")
+        row = box.row(align=True)
+        row.operator("mesh.material_deform_learn_stiffness", icon="SHAPEKEY_DATA")
+        row.prop(s, "learn_filter")
 
         box = layout.box()
         box.label(text="Anchors", icon="EMPTY_AXIS")
@@ -65,6 +75,7 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
 
         box = layout.box()
         box.label(text="Deform", icon="MOD_SIMPLEDEFORM")
+        box.prop_search(s, "region_group", obj, "vertex_groups", icon="SELECT_SET")
         row = box.row(align=True)
         row.operator("mesh.material_deform_bind", text="Rebind" if s.bound else "Bind")
         row.operator("mesh.material_deform_reset", icon="LOOP_BACK")
