@@ -115,10 +115,6 @@ def has_vertex_group(obj, name) -> bool:
     return obj.vertex_groups.get(name) is not None
 
 
-def color_attribute_names(mesh) -> list[str]:
-    return [a.name for a in mesh.color_attributes if a.name != DISPLAY_ATTR]
-
-
 def color_attribute_vertex_rgba(mesh, name):
     """Per-vertex sRGB colour of a colour attribute (corner colours averaged per vertex);
     None if the attribute does not exist."""
@@ -333,10 +329,6 @@ def create_empty(context, name, location, normal, size, near_obj):
     return empty
 
 
-def matrix_np(mat) -> np.ndarray:
-    return np.array(mat, dtype=np.float64)
-
-
 def world_matrix(obj, depsgraph=None):
     """World matrix, evaluated in ``depsgraph`` if given. None if the object is not part of that
     depsgraph (e.g. an Empty disabled for renders, in a render's depsgraph)."""
@@ -407,21 +399,6 @@ def _raw_copy_into_key(kb, flat) -> bool:
     return True
 
 
-def read_key(kb) -> np.ndarray:
-    points = getattr(kb, "points", None)
-    return _get(points if points is not None else kb.data, "co", len(kb.data), np.float32, 3)
-
-
-def evaluated_positions(obj, depsgraph) -> np.ndarray:
-    """Positions after shape keys and modifiers (what the user sees)."""
-    ev = obj.evaluated_get(depsgraph)
-    me = ev.to_mesh()
-    try:
-        return _get(me.vertices, "co", len(me.vertices), np.float32, 3)
-    finally:
-        ev.to_mesh_clear()
-
-
 def remove_output(obj, remove_basis: bool) -> None:
     kb = output_key(obj)
     if kb is not None:
@@ -455,10 +432,6 @@ def set_output_value(obj, value: float) -> None:
 
 def frame_set(scene, frame) -> None:
     scene.frame_set(frame)
-
-
-def evaluated_depsgraph(context):
-    return context.evaluated_depsgraph_get()
 
 
 def status(context, text) -> None:

@@ -52,3 +52,11 @@ def _set_threads(matdeform, threads: str) -> None:
         ctypes.CDLL("libgomp.so.1").omp_set_num_threads(n)
     except (OSError, AttributeError):
         pass  # no GNU OpenMP runtime (other platform or build): nothing to limit
+
+
+def available() -> bool:
+    try:
+        load()
+    except ImportError:
+        return False
+    return True
