@@ -198,7 +198,8 @@ def shape_key_info(obj) -> list[tuple[str, bool, bool]]:
 
 def shape_key_positions(obj, name) -> np.ndarray:
     """Absolute coordinates stored in a shape key (float64)."""
-    return read_key(obj.data.shape_keys.key_blocks[name]).astype(np.float64)
+    kb = obj.data.shape_keys.key_blocks[name]
+    return _get(kb.data, "co", len(kb.data), np.float32, 3).astype(np.float64)
 
 
 def write_face_colors(mesh, name, face_rgba, loop_poly) -> None:

@@ -404,6 +404,8 @@ def _matrix_key(obj, depsgraph, scene=None) -> bytes:
     for anc in settings(obj).anchors:
         if anc.empty is not None:
             mats.append(bridge.world_matrix(anc.empty, depsgraph))
+    if settings(obj).axes_empty is not None:  # turning it after bind makes the bind stale
+        mats.append(bridge.world_matrix(settings(obj).axes_empty, depsgraph))
     return b"".join(b"-" if m is None else m.tobytes() for m in mats)
 
 
