@@ -181,9 +181,12 @@ def set_vertex_group_weights(obj, name, weights) -> str:
     vg = obj.vertex_groups.get(name)
     if vg is None:
         vg = obj.vertex_groups.new(name=name)
-    w = np.clip(np.asarray(weights, dtype=np.float64), 0.0, 1.0)
-    for i, wi in enumerate(w.tolist()):
-        vg.add([i], wi, "REPLACE")
+    w = np.clip(np.asarray(weights, dtype=np.float32), 0.0, 1.0)  # weights are float32
+    values, inverse = np.unique(w, return_inverse=True)
+    order = np.argsort(inverse, kind="stable")  # one add() per distinct weight
+    bounds = np.searchsorted(inverse[order], np.arange(len(values) + 1))
+    for k, value in enumerate(values.tolist()):
+        vg.add(order[bounds[k] : bounds[k + 1]].tolist(), value, "REPLACE")
     return vg.name
 
 

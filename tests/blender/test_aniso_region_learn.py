@@ -334,6 +334,10 @@ def test_learn_from_shape_keys_finds_the_joint():
     vz = np.array([v.co.z for v in obj.data.vertices])
     assert w[np.isclose(vz, 0.2)].max() < 0.7  # joint ring: flexible
     assert w[(vz < -0.1) | (vz > 0.5)].min() > 0.99  # away from it: stiff
+    paint_e = np.clip(1 + np.log10(phi.astype(float)) / 3.0, 0, 1)  # inverse of the log map
+    for v in np.flatnonzero(np.isclose(vz, 0.2)):
+        incident = [e.index for e in obj.data.edges if v in e.vertices]
+        assert w[v] == pytest.approx(paint_e[incident].mean(), abs=1e-5)
     # refining by painting goes through the normal path and keeps the joint flexible
     assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
     phi2 = attr(obj, "md_bend_stiffness")
