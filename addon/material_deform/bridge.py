@@ -135,6 +135,34 @@ def color_attribute_vertex_rgba(mesh, name):
     return out / np.maximum(cnt, 1)[:, None]
 
 
+def color_attribute_writable(obj, name) -> bool:
+    """True if ``name`` is a colour attribute or free (vertex groups share the attribute
+    namespace in Blender 4+, so a group of that name blocks a new colour attribute)."""
+    mesh = obj.data
+    if mesh.color_attributes.get(name) is not None:
+        return True
+    return mesh.attributes.get(name) is None and obj.vertex_groups.get(name) is None
+
+
+def write_color_attribute_vertex_rgb(mesh, name, rgb) -> None:
+    """Write per-vertex sRGB colours (n,3) into a colour attribute, the inverse of
+    :func:`color_attribute_vertex_rgba` (a corner attribute gets its vertex's colour on every
+    corner; alpha 1). Creates a point FLOAT_COLOR attribute if there is none."""
+    attr = mesh.color_attributes.get(name)
+    if attr is None:
+        attr = mesh.color_attributes.new(name, "FLOAT_COLOR", "POINT")
+        if attr is None:
+            raise ValueError(f"cannot create color attribute '{name}'")
+    rgba = np.ones((len(mesh.vertices), 4), dtype=np.float32)
+    rgba[:, :3] = np.clip(rgb, 0.0, 1.0)
+    if attr.domain != "POINT":
+        rgba = rgba[_get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)]
+    n = len(attr.data)
+    field = "color_srgb" if n and hasattr(attr.data[0], "color_srgb") else "color"
+    attr.data.foreach_set(field, rgba.ravel())
+    mesh.update()
+
+
 def write_float_attribute(mesh, name, domain, values) -> None:
     attr = mesh.attributes.get(name)
     if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT"):

@@ -151,8 +151,9 @@ def check_anchors_in_region(region, anchor_faces, names) -> None:
 
 def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = None) -> dict:
     """Learn bending and shear stiffness from the object's shape keys (example poses of the
-    Basis, paper Sec. 6), write the stiffness attributes the bind uses and the paint layers
-    (vertex groups via the inverse log map) so the user can refine them by painting.
+    Basis, paper Sec. 6), write the stiffness attributes the bind uses and the paint layer in
+    use (vertex groups, or the colour attribute, via the inverse log map) so the user can
+    refine them by painting.
 
     Validates everything before writing anything."""
     progress = progress or (lambda _f, _t: None)
@@ -166,6 +167,13 @@ def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = N
         raise BindError(
             f"No example poses: add unmuted shape keys{extra} besides the Basis "
             "(the add-on's own 'Material Deform' and 'MD Bake' keys are ignored)"
+        )
+    if s.stiffness_source == "COLOR_ATTRIBUTE" and not bridge.color_attribute_writable(
+        obj, s.color_attribute
+    ):
+        raise BindError(
+            f"Cannot write color attribute '{s.color_attribute}': the name is taken by a vertex "
+            "group or another attribute (pick another Color Attribute name)"
         )
     progress(0.05, "Material Deform: reading shape keys")
     a = bridge.mesh_arrays(mesh)
@@ -195,30 +203,31 @@ def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = N
     lp = _loop_poly(a)
     psi = amap.triangle_to_polygon_stiffness(shear, a.tri_poly, a.n_polys)
     phi_edge, has = amap.dual_values_to_edges(bend, de, n_e)
+    edge_paint = sm.stiffness_to_paint(phi_edge, span)
+    vpaint = amap.edge_paint_to_vertices(edge_paint, a.edge_verts, has, n_v)  # (n,) or (n,3)
     written = {}
     if s.anisotropic:
-        phi3 = phi_edge
-        phi = np.exp(np.log(phi3).mean(axis=1))  # scalar fallback: geometric mean of the axes
-        bridge.write_vector_attribute(mesh, bridge.BEND_AXES_ATTR, "EDGE", phi3)
-        groups = amap.axis_group_names(s.stiffness_group)
-        vpaint = amap.edge_paint_to_vertices(
-            sm.stiffness_to_paint(phi3, span), a.edge_verts, has, n_v
-        )
-        for c, g in enumerate(groups):
+        phi = np.exp(np.log(phi_edge).mean(axis=1))  # scalar fallback: geometric mean of axes
+        bridge.write_vector_attribute(mesh, bridge.BEND_AXES_ATTR, "EDGE", phi_edge)
+    else:
+        phi = phi_edge
+    if s.stiffness_source == "COLOR_ATTRIBUTE":
+        # R, G, B = x, y, z (grey when isotropic); the shear then follows their mean
+        rgb = vpaint if vpaint.ndim == 2 else np.repeat(vpaint[:, None], 3, axis=1)
+        bridge.write_color_attribute_vertex_rgb(mesh, s.color_attribute, rgb)
+        written[s.color_attribute] = s.color_attribute
+    elif s.anisotropic:
+        for c, g in enumerate(amap.axis_group_names(s.stiffness_group)):
             written[g] = bridge.set_vertex_group_weights(obj, g, vpaint[:, c])
         # the plain group carries the shear in anisotropic mode
         shear_vp = amap.face_paint_to_vertices(
             sm.stiffness_to_paint(psi, span), a.loop_vert, lp, n_v
         )
-        written[s.stiffness_group] = bridge.set_vertex_group_weights(
-            obj, s.stiffness_group, shear_vp
-        )
+        g = s.stiffness_group
+        written[g] = bridge.set_vertex_group_weights(obj, g, shear_vp)
     else:
-        phi = phi_edge
-        vpaint = amap.edge_paint_to_vertices(
-            sm.stiffness_to_paint(phi, span), a.edge_verts, has, n_v
-        )
-        written[s.stiffness_group] = bridge.set_vertex_group_weights(obj, s.stiffness_group, vpaint)
+        g = s.stiffness_group
+        written[g] = bridge.set_vertex_group_weights(obj, g, vpaint)
     bridge.write_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", psi)
     bridge.write_float_attribute(mesh, bridge.BEND_ATTR, "EDGE", phi)
     progress(1.0, "")

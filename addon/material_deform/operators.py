@@ -87,7 +87,7 @@ class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator)
             return {"CANCELLED"}
         msg = (
             f"Learned from {len(res['keys'])} shape key(s); bending {res['phi'].min():.3g} .. "
-            f"{res['phi'].max():.3g}; groups: {', '.join(res['groups'].values())}"
+            f"{res['phi'].max():.3g}; paint written to: {', '.join(res['groups'].values())}"
         )
         self.report({"WARNING"} if reason else {"INFO"}, reason or msg)
         return {"FINISHED"}

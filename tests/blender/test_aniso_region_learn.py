@@ -418,6 +418,43 @@ def test_learn_anisotropic_per_axis_and_filter():
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
 
 
+def test_learn_writes_the_color_attribute_when_that_is_the_paint_source():
+    obj = tube(rings=21)
+    obj.shape_key_add(name="Basis")
+    bend_key(obj, "Bend X", 0.6, "X")
+    s = obj.material_deform
+    s.stiffness_source = "COLOR_ATTRIBUTE"
+    vz = np.array([v.co.z for v in obj.data.vertices])
+    ring = np.isclose(vz, 0.2)
+    for aniso in (False, True):
+        s.anisotropic = aniso
+        assert bpy.ops.mesh.material_deform_learn_stiffness() == {"FINISHED"}
+        assert len(obj.vertex_groups) == 0  # only the paint layer in use is written
+        ca = obj.data.color_attributes["Stiffness"]
+        rgba = np.empty(len(ca.data) * 4, np.float32)
+        ca.data.foreach_get("color_srgb" if hasattr(ca.data[0], "color_srgb") else "color", rgba)
+        rgba = rgba.reshape(-1, 4)
+        if aniso:  # bent about x only: R (x) flexible at the joint, G and B stiff
+            assert rgba[ring, 0].max() < 0.7 and rgba[:, 1:3].min() > 0.9
+        else:  # grey
+            assert rgba[ring, 0].max() < 0.75 and rgba[np.abs(vz - 0.2) > 0.15, 0].min() > 0.9
+            np.testing.assert_allclose(rgba[:, 1], rgba[:, 0], atol=1e-6)
+        # Stiffness from Paint reads it back: the joint stays the most flexible place
+        phi_learned = attr(obj, "md_bend_stiffness").copy()
+        assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
+        z = edge_mid_z(obj)
+        phi = (
+            attr(obj, "md_bend_stiffness_xyz", 3)[:, 0] if aniso else attr(obj, "md_bend_stiffness")
+        )
+        assert abs(z[np.argmin(phi)] - 0.2) < 0.21 and abs(z[np.argmin(phi_learned)] - 0.2) < 0.21
+    # a vertex group holding the colour attribute's name blocks it (Blender 4+): refused, untouched
+    obj.data.color_attributes.remove(obj.data.color_attributes["Stiffness"])
+    obj.vertex_groups.new(name="Stiffness")
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_learn_stiffness, "Cannot write color attribute")
+    assert snapshot(obj) == before
+
+
 def test_learn_without_poses_is_refused():
     obj = tube()
     before = snapshot(obj)
