@@ -24,7 +24,13 @@ def axes_from_matrices(m_obj, m_axes) -> np.ndarray:
     ``inv(M_obj) @ M_axes`` (closest rotation, so object/Empty scale and shear are ignored).
     Columns are the x, y, z axes."""
     m = np.linalg.solve(np.asarray(m_obj, dtype=np.float64), np.asarray(m_axes, dtype=np.float64))
-    a = m[:3, :3]
+    return nearest_rotation(m[:3, :3])
+
+
+def nearest_rotation(a) -> np.ndarray:
+    """Closest rotation to a 3x3 matrix (polar part via SVD; a mirror is flipped back to a
+    right-handed frame). Also re-orthonormalises axes stored in float32."""
+    a = np.asarray(a, dtype=np.float64)
     if not np.isfinite(a).all() or abs(np.linalg.det(a)) < 1e-12:
         raise ValueError("the axes Empty's orientation is degenerate (zero scale?)")
     u, _s, vt = np.linalg.svd(a)

@@ -118,6 +118,24 @@ def axes(obj, depsgraph=None) -> np.ndarray | None:
         raise BindError(f"Axes Empty '{emp.name}': {exc}") from exc
 
 
+def store_bind_axes(obj) -> None:
+    """Freeze the axes Empty's current orientation for the next bind (validated first)."""
+    s = _settings(obj)
+    if s.anisotropic and s.axes_empty is not None:
+        s.bind_axes = axes(obj).ravel().tolist()
+
+
+def bound_axes(obj) -> np.ndarray | None:
+    """Axes the solver is built with: those frozen at bind, None = the object's local axes."""
+    s = _settings(obj)
+    if not s.anisotropic or s.axes_empty is None:
+        return None
+    try:  # stored as float32: back to an exact rotation for the solver
+        return amap.nearest_rotation(np.array(tuple(s.bind_axes)).reshape(3, 3))
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        raise BindError("Stored anisotropy axes are invalid - click Bind again") from exc
+
+
 def region_faces(obj, a: bridge.MeshArrays) -> np.ndarray | None:
     """Triangles of the region of interest: those of the polygons whose vertices are all in the
     region group (None when no region is set)."""

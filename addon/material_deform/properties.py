@@ -108,6 +108,9 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
         "all in it deform, its border stays at rest, the rest is untouched (empty = whole mesh)",
         update=_material_changed,
     )
+    # anisotropy axes frozen at bind (row-major 3x3): the solver is rebuilt from these after
+    # loading a file, when the axes Empty's world matrix is not evaluated yet
+    bind_axes: FloatVectorProperty(size=9, default=(1, 0, 0, 0, 1, 0, 0, 0, 1), options={"HIDDEN"})
     learn_filter: StringProperty(
         name="Keys",
         description="Learn from Shape Keys uses the unmuted shape keys whose name contains this "

@@ -219,7 +219,7 @@ def gather(obj, scene) -> Inputs:
     axes = None
     if s.anisotropic:
         bend = ms.anisotropic_bend(obj, a, dual)
-        axes = ms.axes(obj)
+        axes = ms.bound_axes(obj)
 
     used, tris_c = am.compact(a.tris, len(a.rest))
     fp = (
@@ -231,7 +231,8 @@ def gather(obj, scene) -> Inputs:
         am.fingerprint(
             "uniform" if shear is None else shear,
             "default" if bend is None else bend,
-            "local axes" if axes is None else np.round(axes, 6),
+            # integers: rounding floats could give -0.0 and 0.0 (different bytes)
+            "local axes" if axes is None else np.rint(axes * 1e6).astype(np.int64),
         ),
     )
     return Inputs(a, anchor_faces, modes, shear, bend, used, tris_c, fp, region, axes)
@@ -294,6 +295,9 @@ def _diff_reason(stored, current) -> str:
 def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> Entry:
     progress = progress or (lambda _f, _t: None)
     progress(0.05, "Material Deform: reading mesh")
+    from . import material_setup
+
+    material_setup.store_bind_axes(obj)  # the axes Empty's orientation now
     inp = gather(obj, scene)
     progress(0.3, "Material Deform: factorizing (precompute)")
     entry = _build(inp, obj.data)
