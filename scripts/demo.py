@@ -60,7 +60,9 @@ def draw(ax, v, f, stiff_v, title):
     c = plt.cm.viridis(stiff_v[f].mean(axis=1) / stiff_v.max())
     light = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
     light /= np.linalg.norm(light, axis=1, keepdims=True) + 1e-12
-    shade = 0.55 + 0.45 * np.abs(light @ np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]))
+    shade = 0.55 + 0.45 * np.abs(
+        light @ np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
+    )
     c[:, :3] *= shade[:, None]
     ax.add_collection3d(Poly3DCollection(v[f], facecolors=c, edgecolors="none"))
     lo, hi = v.min(0), v.max(0)
@@ -87,7 +89,13 @@ def main():
         for col, (X, label) in enumerate(
             [(v, "rest (colour = stiffness)"), (uni, "uniform"), (mat, "material-aware")]
         ):
-            draw(fig.add_subplot(2, 3, 3 * row + col + 1, projection="3d"), X, f, s, f"{name}: {label}")
+            draw(
+                fig.add_subplot(2, 3, 3 * row + col + 1, projection="3d"),
+                X,
+                f,
+                s,
+                f"{name}: {label}",
+            )
     fig.tight_layout()
     fig.savefig(out / "demo_core.png", dpi=110)
     print(f"wrote {out}/demo_core.png and OBJ files")

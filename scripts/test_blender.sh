@@ -44,9 +44,10 @@ summary=()
 run() {  # run LABEL CMD...
   local label=$1; shift
   echo "=== $label"
-  local log rc; log=$(mktemp)
-  "$@" >"$log" 2>&1
-  rc=$?
+  local log; log=$(mktemp)
+  # Exit status of the test process itself: a filtered pipeline with '|| true' would hide it.
+  local rc=0
+  "$@" >"$log" 2>&1 || rc=$?
   grep -vE "^(Read blend|Info:|Warning:|Error:|Blender quit)" "$log" || true
   summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)' "$log" | tail -n1)")
   [[ $rc -eq 0 ]] || status=1

@@ -11,6 +11,7 @@ void bind_weights(py::module_& m);
 void bind_stiffness(py::module_& m);
 void bind_deformer(py::module_& m);
 void bind_threads(py::module_& m);
+void bind_learn(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "Material-aware mesh deformation core (C++)";
@@ -21,4 +22,5 @@ PYBIND11_MODULE(_core, m) {
   bind_stiffness(m);
   bind_deformer(m);
   bind_threads(m);
+  bind_learn(m);
 }

@@ -174,7 +174,7 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   Kff.setFromTriplets(kff.begin(), kff.end());
   d.K_fp.resize(nf, static_cast<Eigen::Index>(d.fixed_all.size()));
   d.K_fp.setFromTriplets(kfp.begin(), kfp.end());
-  d.chol = std::make_unique<SparseCholesky>(Kff);
+  d.chol = std::make_unique<SparseCholesky>(Kff, /*minimize_fill=*/true);  // solved per pose
 
   // Gather lists so right-hand-side assembly runs in parallel without write races.
   d.inc_offset.assign(nf + 1, 0);

@@ -5,6 +5,12 @@ numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never 
 
 from .deformer import MaterialDeformer
 from .frames import deformation_gradients
+from .learn import (
+    learn_distortions,
+    learn_stiffness,
+    smooth_distortions,
+    stiffness_from_distortion,
+)
 from .mesh import boundary_and_nonmanifold_edges, dual_edges, faces_inside
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
@@ -25,10 +31,14 @@ __all__ = [
     "faces_inside",
     "harmonic_weights",
     "num_threads",
+    "learn_distortions",
+    "learn_stiffness",
     "polar_decompose",
     "read_obj",
     "set_num_threads",
     "shear_from_vertex",
+    "smooth_distortions",
+    "stiffness_from_distortion",
     "transform_exp",
     "transform_log",
     "write_obj",

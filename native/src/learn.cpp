@@ -1,0 +1,218 @@
+#include "matdeform/learn.hpp"
+
+#include <Eigen/Dense>
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include "matdeform/frames.hpp"
+#include "matdeform/mesh.hpp"
+#include "matdeform/transforms.hpp"
+
+namespace matdeform {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+void validate_inputs(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
+                     const std::vector<Vertices>& poses) {
+  validate_mesh(rest, faces);
+  if (poses.empty()) throw std::invalid_argument("poses: need at least one pose");
+  for (size_t s = 0; s < poses.size(); ++s) {
+    if (poses[s].rows() != rest.rows()) {
+      throw std::invalid_argument("poses[" + std::to_string(s) + "]: expected (" +
+                                  std::to_string(rest.rows()) + ",3) vertices, got (" +
+                                  std::to_string(poses[s].rows()) + ",3)");
+    }
+    if (!poses[s].allFinite()) {
+      throw std::invalid_argument("poses[" + std::to_string(s) + "]: non-finite coordinate");
+    }
+  }
+  const Eigen::Index m = faces.rows();
+  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= m)) {
+    throw std::invalid_argument("pairs: face index out of range [0, " + std::to_string(m) + ")");
+  }
+}
+
+// Of the two axis-angle vectors describing the same rotation when the angle is near pi
+// (w and w - 2 pi w/|w|), the one closest to `ref`. Keeps log differences across an edge small
+// where the principal log jumps.
+Eigen::Vector3d closest_log(const Eigen::Vector3d& w, const Eigen::Vector3d& ref) {
+  const double angle = w.norm();
+  if (angle < 1e-12) return w;
+  const Eigen::Vector3d alt = w - (2.0 * kPi / angle) * w;
+  return (alt - ref).squaredNorm() < (w - ref).squaredNorm() ? alt : w;
+}
+
+// numpy-style linear-interpolation percentile (q in [0,100]) of all entries of x.
+double percentile(const RowMatrix& x, double q) {
+  std::vector<double> v(x.data(), x.data() + x.size());
+  if (v.empty()) return 0.0;
+  const double pos = q / 100.0 * static_cast<double>(v.size() - 1);
+  const auto lo = static_cast<size_t>(std::floor(pos));
+  const size_t hi = std::min(lo + 1, v.size() - 1);
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(lo), v.end());
+  const double a = v[lo];
+  // After nth_element everything right of lo is >= a, so the next order statistic is its min.
+  const double b =
+      hi == lo ? a : *std::min_element(v.begin() + static_cast<std::ptrdiff_t>(hi), v.end());
+  return a + (pos - static_cast<double>(lo)) * (b - a);
+}
+
+}  // namespace
+
+Distortions learn_distortions(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
+                              const std::vector<Vertices>& poses, bool anisotropic,
+                              AxisFrame frame) {
+  validate_inputs(rest, faces, pairs, poses);
+  const Eigen::Index m = faces.rows();
+  const Eigen::Index num_edges = pairs.rows();
+
+  // Rest frames are shared by all poses: invert them once.
+  Matrix3Array rest_inv(static_cast<size_t>(m));
+  Eigen::Index degenerate = -1;
+#pragma omp parallel for schedule(static)
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const Eigen::Matrix3d V =
+        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
+    if (!lu.isInvertible()) {
+#pragma omp critical
+      degenerate = i;
+      rest_inv[static_cast<size_t>(i)].setIdentity();
+    } else {
+      rest_inv[static_cast<size_t>(i)] = lu.inverse();
+    }
+  }
+  if (degenerate >= 0) {
+    throw std::invalid_argument("rest face " + std::to_string(degenerate) +
+                                " is degenerate (zero area)");
+  }
+
+  Distortions out;
+  out.shear = Eigen::VectorXd::Zero(m);
+  out.bend = RowMatrix::Zero(num_edges, anisotropic ? 3 : 1);
+  Matrix3Array Q(static_cast<size_t>(m));
+  std::vector<Eigen::Vector3d> logs(anisotropic ? static_cast<size_t>(m) : 0);
+  std::vector<char> valid(static_cast<size_t>(m));
+
+  for (const Vertices& pose : poses) {
+#pragma omp parallel for schedule(static)
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const auto u = static_cast<size_t>(i);
+      const Eigen::Matrix3d T =
+          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
+          rest_inv[u];
+      valid[u] = T.determinant() > 0.0;
+      if (!valid[u]) continue;
+      Eigen::Matrix3d S, R;
+      polar_decompose(T, &S, &R);
+      Q[u] = R;
+      out.shear(i) = std::max(out.shear(i), (S - Eigen::Matrix3d::Identity()).squaredNorm());
+      if (anisotropic && frame == AxisFrame::kWorldLogDifference) logs[u] = rotation_log(R);
+    }
+#pragma omp parallel for schedule(static)
+    for (Eigen::Index e = 0; e < num_edges; ++e) {
+      const auto i = static_cast<size_t>(pairs(e, 0)), j = static_cast<size_t>(pairs(e, 1));
+      if (!valid[i] || !valid[j]) continue;
+      if (!anisotropic) {
+        out.bend(e, 0) = std::max(out.bend(e, 0), (Q[i] - Q[j]).squaredNorm());
+        continue;
+      }
+      const Eigen::Vector3d w = frame == AxisFrame::kRest
+                                    ? rotation_log(Q[i].transpose() * Q[j])
+                                    : Eigen::Vector3d(closest_log(logs[j], logs[i]) - logs[i]);
+      for (int a = 0; a < 3; ++a) out.bend(e, a) = std::max(out.bend(e, a), w(a) * w(a));
+    }
+  }
+  return out;
+}
+
+RowMatrix stiffness_from_distortion(const RowMatrix& d, const StiffnessMap& map) {
+  if (!(map.eps > 0.0 && map.eps <= 1.0)) throw std::invalid_argument("eps must be in (0, 1]");
+  if (!(map.clamp_percent >= 0.0 && map.clamp_percent < 100.0)) {
+    throw std::invalid_argument("clamp_percent must be in [0, 100)");
+  }
+  if (!(map.sharpness >= 0.0 && std::isfinite(map.sharpness))) {
+    throw std::invalid_argument("sharpness must be finite and >= 0");
+  }
+  if (!d.allFinite() || (d.size() > 0 && d.minCoeff() < 0.0)) {
+    throw std::invalid_argument("distortion must be finite and >= 0");
+  }
+  RowMatrix out = RowMatrix::Ones(d.rows(), d.cols());
+  if (d.size() == 0) return out;
+  const double top =
+      map.clamp_percent > 0.0 ? percentile(d, 100.0 - map.clamp_percent) : d.maxCoeff();
+  // Distortions are dimensionless; below kNoise (|Q_i - Q_j|_F^2 = 1e-12 is a relative
+  // rotation of ~1e-6 rad) they are round-off, which must not be blown up to the full range.
+  constexpr double kNoise = 1e-12;
+  const double scale = std::max(top, kNoise);
+  const double a = map.sharpness;
+  const double tail = std::exp(-a);
+  for (Eigen::Index k = 0; k < d.size(); ++k) {
+    const double u = std::min(d.data()[k], scale) / scale;
+    // Below a ~ 1e-8 the exponential form loses all digits; it tends to the linear one anyway.
+    const double g = a < 1e-8 ? 1.0 - u : (std::exp(-a * u) - tail) / (1.0 - tail);
+    out.data()[k] = map.eps + (1.0 - map.eps) * g;
+  }
+  return out;
+}
+
+Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexPairs& pairs,
+                               int passes) {
+  if (passes < 0) throw std::invalid_argument("smoothing passes must be >= 0");
+  if (d.shear.size() != num_faces || d.bend.rows() != pairs.rows()) {
+    throw std::invalid_argument("distortions do not match num_faces / pairs");
+  }
+  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= num_faces)) {
+    throw std::invalid_argument("pairs: face index out of range");
+  }
+  if (passes == 0) return d;
+  const Eigen::Index m = num_faces, num_edges = pairs.rows(), cols = d.bend.cols();
+  // Face values: column 0..cols-1 bending, column cols shear; smoothed together.
+  RowMatrix x = RowMatrix::Zero(m, cols + 1);
+  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
+  for (Eigen::Index e = 0; e < num_edges; ++e) {
+    for (int k = 0; k < 2; ++k) {
+      x.row(pairs(e, k)).head(cols) += d.bend.row(e);
+      degree(pairs(e, k)) += 1.0;
+    }
+  }
+  for (Eigen::Index f = 0; f < m; ++f) {
+    if (degree(f) > 0) x.row(f).head(cols) /= degree(f);
+  }
+  x.col(cols) = d.shear;
+  RowMatrix next(m, cols + 1);
+  for (int p = 0; p < passes; ++p) {
+    next = x;
+    for (Eigen::Index e = 0; e < num_edges; ++e) {
+      next.row(pairs(e, 0)) += x.row(pairs(e, 1));
+      next.row(pairs(e, 1)) += x.row(pairs(e, 0));
+    }
+    for (Eigen::Index f = 0; f < m; ++f) next.row(f) /= 1.0 + degree(f);
+    x.swap(next);
+  }
+  Distortions out;
+  out.shear = x.col(cols);
+  out.bend.resize(num_edges, cols);
+  for (Eigen::Index e = 0; e < num_edges; ++e) {
+    out.bend.row(e) = 0.5 * (x.row(pairs(e, 0)).head(cols) + x.row(pairs(e, 1)).head(cols));
+  }
+  return out;
+}
+
+LearnedStiffness learn_stiffness(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
+                                 const std::vector<Vertices>& poses, bool anisotropic,
+                                 const StiffnessMap& map, AxisFrame frame, int smoothing_passes) {
+  if (smoothing_passes < 0) throw std::invalid_argument("smoothing passes must be >= 0");
+  const Distortions d =
+      smooth_distortions(learn_distortions(rest, faces, pairs, poses, anisotropic, frame),
+                         static_cast<int>(faces.rows()), pairs, smoothing_passes);
+  LearnedStiffness out;
+  out.bend = stiffness_from_distortion(d.bend, map);
+  out.shear = stiffness_from_distortion(d.shear, map);
+  return out;
+}
+
+}  // namespace matdeform

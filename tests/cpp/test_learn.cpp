@@ -1,0 +1,283 @@
+// Closed-form checks of stiffness learning (Popa et al. 2006, Sec. 6).
+#include <gtest/gtest.h>
+
+#include <Eigen/Geometry>
+#include <cmath>
+#include <stdexcept>
+
+#include "matdeform/learn.hpp"
+#include "matdeform/mesh.hpp"
+
+namespace md = matdeform;
+
+namespace {
+
+// Flat (nx x ny)-quad grid in the z = 0 plane, unit spacing, two triangles per quad.
+void make_grid(int nx, int ny, md::Vertices* V, md::Faces* F) {
+  V->resize((nx + 1) * (ny + 1), 3);
+  for (int j = 0; j <= ny; ++j) {
+    for (int i = 0; i <= nx; ++i) V->row(j * (nx + 1) + i) << i, j, 0.0;
+  }
+  F->resize(2 * nx * ny, 3);
+  int f = 0;
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      const int a = j * (nx + 1) + i, b = a + 1, c = a + nx + 1, d = c + 1;
+      F->row(f++) << a, b, d;
+      F->row(f++) << a, d, c;
+    }
+  }
+}
+
+// Folds everything right of the line x = x0 about the y axis by `angle` (a rigid hinge).
+md::Vertices fold(const md::Vertices& V, double x0, double angle) {
+  md::Vertices out = V;
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle, Eigen::Vector3d::UnitY()).toRotationMatrix();
+  const Eigen::Vector3d c(x0, 0, 0);
+  for (Eigen::Index v = 0; v < V.rows(); ++v) {
+    if (V(v, 0) > x0) out.row(v) = (R * (V.row(v).transpose() - c) + c).transpose();
+  }
+  return out;
+}
+
+md::Vertices rigid(const md::Vertices& V, const Eigen::Vector3d& axis, double angle,
+                   const Eigen::Vector3d& t) {
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix();
+  md::Vertices out = V;
+  for (Eigen::Index v = 0; v < V.rows(); ++v)
+    out.row(v) = (R * V.row(v).transpose() + t).transpose();
+  return out;
+}
+
+// Dual edges whose shared mesh edge lies on the line x = x0.
+std::vector<bool> on_line(const md::Vertices& V, const md::DualEdges& d, double x0) {
+  std::vector<bool> out(static_cast<size_t>(d.pairs.rows()));
+  for (Eigen::Index e = 0; e < d.pairs.rows(); ++e) {
+    out[static_cast<size_t>(e)] = V(d.shared(e, 0), 0) == x0 && V(d.shared(e, 1), 0) == x0;
+  }
+  return out;
+}
+
+class HingeTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    make_grid(10, 3, &V, &F);
+    dual = md::dual_edges(F);
+    // Pose 0 bends at x = 3 (twice, the larger angle counts), pose 1 at x = 7.
+    poses = {fold(V, 3.0, 0.4), fold(V, 7.0, -1.1), fold(V, 3.0, -0.7)};
+  }
+  md::Vertices V;
+  md::Faces F;
+  md::DualEdges dual;
+  std::vector<md::Vertices> poses;
+};
+
+double frob_sq_rotation_gap(double angle) { return 8.0 * std::pow(std::sin(angle / 2.0), 2); }
+
+}  // namespace
+
+TEST_F(HingeTest, IsotropicDistortionIsMaxOverPosesAtHingesOnly) {
+  const md::Distortions d = md::learn_distortions(V, F, dual.pairs, poses, false);
+  ASSERT_EQ(d.bend.rows(), dual.pairs.rows());
+  ASSERT_EQ(d.bend.cols(), 1);
+  const auto at3 = on_line(V, dual, 3.0), at7 = on_line(V, dual, 7.0);
+  int hinges = 0;
+  for (Eigen::Index e = 0; e < d.bend.rows(); ++e) {
+    const auto u = static_cast<size_t>(e);
+    const double want = at3[u] ? frob_sq_rotation_gap(0.7) : at7[u] ? frob_sq_rotation_gap(1.1) : 0;
+    hinges += at3[u] || at7[u];
+    EXPECT_NEAR(d.bend(e, 0), want, 1e-12) << "edge " << e;
+  }
+  EXPECT_EQ(hinges, 6);  // 3 quads high, one diagonal-free vertical edge per row per hinge
+  EXPECT_LT(d.shear.maxCoeff(), 1e-20);  // rigid folds: no stretch anywhere
+}
+
+TEST_F(HingeTest, LearnedBendingIsMinimalExactlyAtHinges) {
+  md::StiffnessMap map;
+  map.eps = 0.05;
+  map.clamp_percent = 0.0;
+  const md::LearnedStiffness s = md::learn_stiffness(V, F, dual.pairs, poses, false, map);
+  const auto at3 = on_line(V, dual, 3.0), at7 = on_line(V, dual, 7.0);
+  for (Eigen::Index e = 0; e < s.bend.rows(); ++e) {
+    const auto u = static_cast<size_t>(e);
+    if (at7[u]) {
+      EXPECT_NEAR(s.bend(e, 0), 0.05, 1e-12);  // the largest bend maps to eps
+    } else if (at3[u]) {
+      const double ratio = frob_sq_rotation_gap(0.7) / frob_sq_rotation_gap(1.1);
+      EXPECT_NEAR(s.bend(e, 0), 0.05 + 0.95 * (1.0 - ratio), 1e-12);
+    } else {
+      EXPECT_DOUBLE_EQ(s.bend(e, 0), 1.0);
+    }
+  }
+  // No face stretched: all shear stiffness is 1.
+  EXPECT_DOUBLE_EQ(s.shear.minCoeff(), 1.0);
+}
+
+TEST_F(HingeTest, AnisotropicBendingSeesOnlyTheHingeAxis) {
+  for (md::AxisFrame frame : {md::AxisFrame::kRest, md::AxisFrame::kWorldLogDifference}) {
+    const md::Distortions d = md::learn_distortions(V, F, dual.pairs, poses, true, frame);
+    ASSERT_EQ(d.bend.cols(), 3);
+    const auto at3 = on_line(V, dual, 3.0), at7 = on_line(V, dual, 7.0);
+    for (Eigen::Index e = 0; e < d.bend.rows(); ++e) {
+      const auto u = static_cast<size_t>(e);
+      const double want = at3[u] ? 0.7 * 0.7 : at7[u] ? 1.1 * 1.1 : 0.0;
+      EXPECT_NEAR(d.bend(e, 0), 0.0, 1e-20);
+      EXPECT_NEAR(d.bend(e, 1), want, 1e-12);  // folds turn about y
+      EXPECT_NEAR(d.bend(e, 2), 0.0, 1e-20);
+    }
+  }
+}
+
+TEST_F(HingeTest, InvariantToRigidMotionOfEachPose) {
+  const md::Distortions a = md::learn_distortions(V, F, dual.pairs, poses, false);
+  const md::Distortions aa = md::learn_distortions(V, F, dual.pairs, poses, true);
+  std::vector<md::Vertices> moved = {
+      rigid(poses[0], Eigen::Vector3d(1, 2, 3), 2.5, Eigen::Vector3d(4, -1, 7)),
+      rigid(poses[1], Eigen::Vector3d(-1, 0, 1), 1.0, Eigen::Vector3d(0, 0, -3)),
+      rigid(poses[2], Eigen::Vector3d(0, 1, 0), 3.0, Eigen::Vector3d(1, 1, 1))};
+  const md::Distortions b = md::learn_distortions(V, F, dual.pairs, moved, false);
+  const md::Distortions bb = md::learn_distortions(V, F, dual.pairs, moved, true);
+  EXPECT_LT((a.bend - b.bend).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((a.shear - b.shear).cwiseAbs().maxCoeff(), 1e-12);
+  EXPECT_LT((aa.bend - bb.bend).cwiseAbs().maxCoeff(), 1e-12);
+}
+
+TEST_F(HingeTest, SmoothingSpreadsAroundTheHinges) {
+  md::StiffnessMap map;
+  map.clamp_percent = 0.0;
+  const md::LearnedStiffness s =
+      md::learn_stiffness(V, F, dual.pairs, poses, false, map, md::AxisFrame::kRest, 2);
+  Eigen::Index argmin = 0;
+  const double lowest = s.bend.col(0).minCoeff(&argmin);
+  EXPECT_NEAR(lowest, 0.01, 1e-12);  // the smoothed maximum still maps to eps
+  // ... and it sits next to the larger fold at x = 7, not at x = 3 or far away.
+  const double x = 0.5 * (V(dual.shared(argmin, 0), 0) + V(dual.shared(argmin, 1), 0));
+  EXPECT_GE(x, 6.0);
+  EXPECT_LE(x, 8.0);
+  int softened = 0;
+  for (Eigen::Index e = 0; e < s.bend.rows(); ++e) {
+    const double xe = std::max(V(dual.shared(e, 0), 0), V(dual.shared(e, 1), 0));
+    if (xe <= 1.0) {
+      EXPECT_DOUBLE_EQ(s.bend(e, 0), 1.0);  // out of reach of two passes
+    }
+    softened += s.bend(e, 0) < 1.0;
+  }
+  EXPECT_GT(softened, 12);  // more than the 6 hinge edges are now flexible
+}
+
+TEST(SmoothDistortions, ClosedFormOnTwoFacesAndConstantsPreserved) {
+  md::IndexPairs pairs(1, 2);
+  pairs << 0, 1;
+  md::Distortions d;
+  d.bend = md::RowMatrix::Constant(1, 3, 0.5);
+  d.shear = Eigen::Vector2d(1.0, 3.0);
+  const md::Distortions s = md::smooth_distortions(d, 2, pairs, 1);
+  EXPECT_NEAR(s.shear(0), 2.0, 1e-15);
+  EXPECT_NEAR(s.shear(1), 2.0, 1e-15);
+  EXPECT_NEAR((s.bend.array() - 0.5).abs().maxCoeff(), 0.0, 1e-15);
+
+  md::Vertices V;
+  md::Faces F;
+  make_grid(5, 4, &V, &F);
+  const md::IndexPairs grid_pairs = md::dual_edges(F).pairs;
+  md::Distortions c;
+  c.bend = md::RowMatrix::Constant(grid_pairs.rows(), 1, 0.25);
+  c.shear = Eigen::VectorXd::Constant(F.rows(), 0.75);
+  const md::Distortions cs = md::smooth_distortions(c, static_cast<int>(F.rows()), grid_pairs, 7);
+  EXPECT_LT((cs.bend.array() - 0.25).abs().maxCoeff(), 1e-14);
+  EXPECT_LT((cs.shear.array() - 0.75).abs().maxCoeff(), 1e-14);
+  EXPECT_THROW(md::smooth_distortions(c, static_cast<int>(F.rows()), grid_pairs, -1),
+               std::invalid_argument);
+}
+
+TEST(LearnShear, UniformStretchMatchesClosedForm) {
+  md::Vertices V;
+  md::Faces F;
+  make_grid(4, 4, &V, &F);
+  md::Vertices P = V;
+  P.col(0) *= 2.0;
+  // In-plane x doubles; the fourth vertex offset n / sqrt|n| grows by sqrt(2) since the area
+  // doubles, so T = S = diag(2, 1, sqrt 2) on every face.
+  const md::Distortions d = md::learn_distortions(V, F, md::dual_edges(F).pairs, {P}, false);
+  const double want = 1.0 + std::pow(std::sqrt(2.0) - 1.0, 2);
+  for (Eigen::Index i = 0; i < F.rows(); ++i) EXPECT_NEAR(d.shear(i), want, 1e-12);
+  EXPECT_LT(d.bend.maxCoeff(), 1e-24);
+}
+
+TEST(LearnShear, CollapsedFacesAreSkipped) {
+  md::Vertices V;
+  md::Faces F;
+  make_grid(2, 1, &V, &F);  // faces 0,1 in the left quad, 2,3 in the right one
+  md::Vertices P = V;
+  P.row(4) << 0.0, 0.5, 0.0;  // vertex (1,1) onto edge (0,0)-(0,1): face 1 = (0,4,3) collapses
+  const md::Distortions d = md::learn_distortions(V, F, md::dual_edges(F).pairs, {V, P}, false);
+  EXPECT_EQ(d.shear(1), 0.0);  // only the rest-like pose counted for the collapsed face
+  EXPECT_GT(d.shear(0), 0.1);  // face 0 = (0,1,4) is squashed, not collapsed
+  EXPECT_TRUE(d.bend.allFinite());
+}
+
+TEST(StiffnessMap, LinearAndExponentialClosedForm) {
+  md::RowMatrix d(4, 1);
+  d << 0.0, 1.0, 2.0, 4.0;
+  md::StiffnessMap map;
+  map.eps = 0.1;
+  map.clamp_percent = 0.0;
+  md::RowMatrix s = md::stiffness_from_distortion(d, map);
+  EXPECT_NEAR(s(0), 1.0, 1e-15);
+  EXPECT_NEAR(s(1), 0.1 + 0.9 * 0.75, 1e-15);
+  EXPECT_NEAR(s(2), 0.1 + 0.9 * 0.5, 1e-15);
+  EXPECT_NEAR(s(3), 0.1, 1e-15);
+  map.sharpness = 3.0;
+  s = md::stiffness_from_distortion(d, map);
+  const double g = (std::exp(-1.5) - std::exp(-3.0)) / (1.0 - std::exp(-3.0));
+  EXPECT_NEAR(s(2), 0.1 + 0.9 * g, 1e-15);
+  EXPECT_NEAR(s(0), 1.0, 1e-15);
+  EXPECT_NEAR(s(3), 0.1, 1e-15);
+}
+
+TEST(StiffnessMap, PercentileClampKeepsOutlierFromSquashingTheScale) {
+  // 0, 1, ..., 99 and one huge outlier. The 99th percentile of 101 values (linear
+  // interpolation) sits at position 99 -> value 99.
+  md::RowMatrix d(101, 1);
+  for (int i = 0; i < 100; ++i) d(i) = i;
+  d(100) = 1e6;
+  md::StiffnessMap map;
+  map.eps = 0.01;
+  map.clamp_percent = 1.0;
+  const md::RowMatrix s = md::stiffness_from_distortion(d, map);
+  EXPECT_NEAR(s(50), 0.01 + 0.99 * (1.0 - 50.0 / 99.0), 1e-14);
+  EXPECT_NEAR(s(99), 0.01, 1e-14);
+  EXPECT_NEAR(s(100), 0.01, 1e-14);
+  EXPECT_GE(s.minCoeff(), 0.01);
+  EXPECT_LE(s.maxCoeff(), 1.0);
+  // Without the clamp the outlier pushes every other value to within 1e-4 of stiffness 1.
+  map.clamp_percent = 0.0;
+  EXPECT_GT(md::stiffness_from_distortion(d, map)(99), 0.999);
+}
+
+TEST(StiffnessMap, AllZeroIsAllStiffAndBadInputThrows) {
+  md::StiffnessMap map;
+  EXPECT_DOUBLE_EQ(md::stiffness_from_distortion(md::RowMatrix::Zero(5, 3), map).minCoeff(), 1.0);
+  md::RowMatrix neg(1, 1);
+  neg << -1.0;
+  EXPECT_THROW(md::stiffness_from_distortion(neg, map), std::invalid_argument);
+  map.eps = 0.0;
+  EXPECT_THROW(md::stiffness_from_distortion(md::RowMatrix::Zero(2, 1), map),
+               std::invalid_argument);
+}
+
+TEST(LearnInput, BadPosesThrow) {
+  md::Vertices V;
+  md::Faces F;
+  make_grid(2, 2, &V, &F);
+  const md::IndexPairs pairs = md::dual_edges(F).pairs;
+  EXPECT_THROW(md::learn_distortions(V, F, pairs, {}, false), std::invalid_argument);
+  md::Vertices short_pose = V.topRows(V.rows() - 1);
+  EXPECT_THROW(md::learn_distortions(V, F, pairs, {short_pose}, false), std::invalid_argument);
+  md::Vertices nan_pose = V;
+  nan_pose(2, 1) = std::nan("");
+  EXPECT_THROW(md::learn_distortions(V, F, pairs, {V, nan_pose}, false), std::invalid_argument);
+  md::IndexPairs bad = pairs;
+  bad(0, 1) = static_cast<int>(F.rows());
+  EXPECT_THROW(md::learn_distortions(V, F, bad, {V}, false), std::invalid_argument);
+}
