@@ -499,3 +499,23 @@ def test_save_reload_rebuilds_anisotropic_region_bind(tmp_path):
     update()
     assert session.stale_reason(obj) == ""
     np.testing.assert_allclose(output(obj), before, atol=1e-6)
+
+
+def test_learn_anisotropic_along_the_axes_empty():
+    """With an axes Empty turned 90 degrees about Y (its z axis is the object's x axis), a
+    pose bending about the object's x axis is learned in the z component."""
+    obj = tube(rings=21)
+    obj.shape_key_add(name="Basis")
+    bend_key(obj, "Bend", 0.6, "X")
+    emp = bpy.data.objects.new("Axes", None)
+    bpy.context.scene.collection.objects.link(emp)
+    emp.rotation_euler = (0.0, math.pi / 2, 0.0)
+    update()
+    s = obj.material_deform
+    s.anisotropic, s.axes_empty = True, emp
+    assert bpy.ops.mesh.material_deform_learn_stiffness() == {"FINISHED"}
+    phi3 = attr(obj, "md_bend_stiffness_xyz", 3)
+    joint = np.isclose(edge_mid_z(obj), 0.2, atol=0.01)
+    assert phi3[joint, 2].max() < 0.01  # about the Empty's z = the object's x
+    assert phi3[:, 0].min() > 0.99  # the Empty's x is the bar axis: no twist
+    assert phi3[joint, 1].min() > 0.4
