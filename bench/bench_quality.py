@@ -212,6 +212,27 @@ def learned(anisotropic: bool = False, **kw) -> Stiffness:
 BENCH: Bench  # set in main(); the variant closures read it
 
 
+def plot_anchors(b: Bench, path: Path) -> None:
+    """Side and top views of the reference cat with the anchor regions highlighted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, (i, j, title) in zip(axes, [(2, 1, "side (z, y)"), (2, 0, "top (z, x)")], strict=True):
+        ax.scatter(b.rest[:, i], b.rest[:, j], s=0.2, c="0.7")
+        for (name, v), r in zip(b.points.items(), b.region_verts, strict=True):
+            ax.scatter(b.rest[r, i], b.rest[r, j], s=1.5, label=name)
+            ax.annotate(name, (b.rest[v, i], b.rest[v, j]), fontsize=8)
+        ax.set_aspect("equal")
+        ax.set_title(title)
+    axes[0].legend(markerscale=6, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"  wrote {path}")
+
+
 def fmt_row(name: str, errs: list[float], note: str = "") -> str:
     cells = " | ".join(f"{e:.4f}" for e in errs)
     return f"| {name} | {np.mean(errs):.4f} | {cells} |{(' ' + note) if note else ''}"
@@ -223,6 +244,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
     ap.add_argument("--no-blender", action="store_true")
     ap.add_argument("--explore", action="store_true", help="also run the learning variants")
+    ap.add_argument("--plot", type=Path, help="write a PNG of the anchor regions (matplotlib)")
     args = ap.parse_args()
 
     b = BENCH = Bench(args.data)
@@ -233,6 +255,8 @@ def main() -> None:
             f"{len(r)} vertices, {len(fs)} faces"
         )
     print(f"  {len(b.pinned)} pinned vertices")
+    if args.plot:
+        plot_anchors(b, args.plot)
 
     header = "| method | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |"
     print(header)
