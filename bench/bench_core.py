@@ -81,11 +81,46 @@ def measure(name, v, f, anchors, repeats, mode):
     }
 
 
+def region_rows(repeats):
+    """Paper Sec. 7: solve only a region (~10% of a 200k-face tube) vs the whole mesh."""
+    v, f = shapes.tube_with_faces(200_000)
+    L = v[:, 0].max()
+    xc = v[f].mean(axis=1)[:, 0]
+    region = np.flatnonzero((xc > 0.45 * L) & (xc < 0.55 * L))
+    a0 = np.flatnonzero(np.abs(xc - 0.46 * L) < 0.002 * L)
+    a1 = np.flatnonzero(np.abs(xc - 0.54 * L) < 0.002 * L)
+    rows = []
+    for label, roi in (("whole mesh", None), ("region 10%", region)):
+        t0 = time.perf_counter()
+        d = md.MaterialDeformer(v, f, [a0, a1], region=roi)
+        pre = time.perf_counter() - t0
+        T = poses(2, repeats + 3)
+        times = []
+        for p in range(len(T)):
+            t0 = time.perf_counter()
+            d.deform(T[p])
+            times.append(time.perf_counter() - t0)
+        rows.append(
+            {
+                "name": f"tube 200k, {label}",
+                "faces": len(f) if roi is None else len(roi),
+                "vertices": len(v),
+                "anchors": 2,
+                "mode": "4x4",
+                "precompute_s": pre,
+                "deform_ms": statistics.median(times[3:]) * 1e3,
+                "target": None,
+            }
+        )
+    return rows
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--sizes", type=int, nargs="*", default=[10_000, 50_000, 200_000])
     ap.add_argument("--precompute-repeats", type=int, default=3)
+    ap.add_argument("--region", action="store_true", help="also run the region-of-interest rows")
     args = ap.parse_args()
 
     rows = []
@@ -116,6 +151,9 @@ def main():
             r["deform_ms"] = statistics.median(x["deform_ms"] for x in runs)
             r["target"] = None
             rows.append(r)
+
+    if 200_000 in args.sizes or args.region:
+        rows.extend(region_rows(args.repeats))
 
     print(
         f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "

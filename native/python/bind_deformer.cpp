@@ -7,14 +7,20 @@ using namespace matdeform;
 void bind_deformer(py::module_& m) {
   py::class_<MaterialDeformer>(m, "MaterialDeformer")
       .def(py::init([](const Vertices& vertices, const Faces& faces, const AnchorList& anchors,
-                       const Eigen::VectorXd& shear, const Eigen::VectorXd& bend,
-                       std::optional<std::vector<int>> pinned) {
+                       const Eigen::VectorXd& shear, const RowMatrix& bend,
+                       std::optional<std::vector<int>> pinned,
+                       std::optional<std::vector<int>> region, const Eigen::Matrix3d& axes) {
+             DeformerOptions options;
+             options.pinned = std::move(pinned);
+             options.region = std::move(region);
+             options.axes = axes;
              py::gil_scoped_release release;
              return std::make_unique<MaterialDeformer>(vertices, faces, anchors, shear, bend,
-                                                       std::move(pinned));
+                                                       options);
            }),
            py::arg("vertices"), py::arg("faces"), py::arg("anchors"), py::arg("shear"),
-           py::arg("bend"), py::arg("pinned"))
+           py::arg("bend"), py::arg("pinned") = py::none(), py::arg("region") = py::none(),
+           py::arg("axes") = Eigen::Matrix3d::Identity())
       .def(
           "deform",
           [](const MaterialDeformer& self, const py_convert::DoubleArray& transforms,
@@ -34,8 +40,11 @@ void bind_deformer(py::module_& m) {
             py::gil_scoped_release release;
             return self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr);
           },
-          py::arg("transforms"), py::arg("pinned_positions"))
+          py::arg("transforms"), py::arg("pinned_positions") = py::none())
       .def_property_readonly("weights", &MaterialDeformer::weights)
+      .def("axis_weights", &MaterialDeformer::axis_weights, py::arg("axis"))
+      .def_property_readonly("anisotropic", &MaterialDeformer::anisotropic)
+      .def_property_readonly("num_region_vertices", &MaterialDeformer::num_region_vertices)
       .def_property_readonly("face_transforms", [](const MaterialDeformer& self) {
         return py_convert::from_matrices3(self.face_transforms());
       });

@@ -15,6 +15,8 @@ namespace matdeform::py_convert {
 
 namespace py = pybind11;
 using DoubleArray = py::array_t<double, py::array::c_style | py::array::forcecast>;
+using RowMatrix3 = Eigen::Matrix<double, 3, 3, Eigen::RowMajor>;
+using RowMap3 = Eigen::Map<const RowMatrix3>;
 
 // (k,3,3) numpy -> k matrices.
 inline Matrix3Array to_matrices3(const DoubleArray& a) {
@@ -22,20 +24,16 @@ inline Matrix3Array to_matrices3(const DoubleArray& a) {
     throw std::invalid_argument("expected an array of shape (k,3,3)");
   }
   Matrix3Array out(static_cast<size_t>(a.shape(0)));
-  auto r = a.unchecked<3>();
-  for (py::ssize_t i = 0; i < a.shape(0); ++i)
-    for (int x = 0; x < 3; ++x)
-      for (int y = 0; y < 3; ++y) out[static_cast<size_t>(i)](x, y) = r(i, x, y);
+  const double* src = a.data();
+  for (size_t i = 0; i < out.size(); ++i) out[i] = RowMap3(src + 9 * i);
   return out;
 }
 
 // k matrices -> (k,3,3) numpy.
 inline py::array_t<double> from_matrices3(const Matrix3Array& m) {
   py::array_t<double> out({static_cast<py::ssize_t>(m.size()), py::ssize_t{3}, py::ssize_t{3}});
-  auto w = out.mutable_unchecked<3>();
-  for (size_t i = 0; i < m.size(); ++i)
-    for (int x = 0; x < 3; ++x)
-      for (int y = 0; y < 3; ++y) w(static_cast<py::ssize_t>(i), x, y) = m[i](x, y);
+  double* dst = out.mutable_data();
+  for (size_t i = 0; i < m.size(); ++i) Eigen::Map<RowMatrix3>(dst + 9 * i) = m[i];
   return out;
 }
 

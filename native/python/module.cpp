@@ -10,6 +10,7 @@ void bind_transforms(py::module_& m);
 void bind_weights(py::module_& m);
 void bind_stiffness(py::module_& m);
 void bind_deformer(py::module_& m);
+void bind_threads(py::module_& m);
 void bind_learn(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
@@ -20,5 +21,6 @@ PYBIND11_MODULE(_core, m) {
   bind_weights(m);
   bind_stiffness(m);
   bind_deformer(m);
+  bind_threads(m);
   bind_learn(m);
 }

@@ -1,5 +1,6 @@
 #include "matdeform/deformer.hpp"
 
+#include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
 #include <stdexcept>
@@ -13,38 +14,143 @@
 namespace matdeform {
 
 namespace {
-void check_positive(const Eigen::VectorXd& x, const char* name) {
-  for (Eigen::Index i = 0; i < x.size(); ++i) {
-    if (!std::isfinite(x(i)) || !(x(i) > 0.0)) {
-      throw std::invalid_argument(std::string(name) + "[" + std::to_string(i) +
-                                  "] must be finite and > 0");
+void check_positive(const double* x, Eigen::Index size, const char* name) {
+  for (Eigen::Index i = 0; i < size; ++i) {
+    if (!std::isfinite(x[i]) || !(x[i] > 0.0)) {
+      throw std::invalid_argument(std::string(name) + ": stiffness must be finite and > 0");
     }
   }
+}
+
+std::vector<int> sorted_unique(std::vector<int> v) {
+  std::sort(v.begin(), v.end());
+  v.erase(std::unique(v.begin(), v.end()), v.end());
+  return v;
 }
 }  // namespace
 
 MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
                                    const AnchorList& anchors, const Eigen::VectorXd& shear,
-                                   const Eigen::VectorXd& bend,
-                                   std::optional<std::vector<int>> pinned)
-    : rest_(vertices), faces_(faces), anchors_(anchors), shear_(shear), pinned_(std::move(pinned)) {
+                                   const RowMatrix& bend, const DeformerOptions& options)
+    : rest_(vertices), axes_(options.axes) {
   validate_mesh(vertices, faces);
+  const int n = static_cast<int>(vertices.rows());
   const int m = static_cast<int>(faces.rows());
   if (shear.size() != m) throw std::invalid_argument("shear: expected one value per face");
-  check_positive(shear, "shear");
-  check_positive(bend, "bend");
+  check_positive(shear.data(), shear.size(), "shear");
   const DualEdges dual = dual_edges(faces);
-  if (bend.size() != dual.pairs.rows()) {
-    throw std::invalid_argument("bend: expected one value per dual edge");
+  if (bend.rows() != dual.pairs.rows() || (bend.cols() != 1 && bend.cols() != 3)) {
+    throw std::invalid_argument("bend: expected shape (E,1) or (E,3) with E dual edges");
   }
+  check_positive(bend.data(), bend.size(), "bend");
   validate_anchors(m, anchors);
-  weights_ = harmonic_weights(m, dual.pairs, bend, anchors);
+  if (!(axes_.transpose() * axes_).isIdentity(1e-9) || axes_.determinant() < 0) {
+    throw std::invalid_argument("axes: expected a rotation matrix (orthonormal columns)");
+  }
 
-  // Vertex -> anchors that use it, for anchors whose vertices follow their full transform.
-  std::vector<std::pair<int, int>> va;
+  // Region of interest: compact to the region's faces and vertices (whole mesh by default).
+  std::vector<int> face_map(m, -1);
+  if (options.region) {
+    sub_face_ids_ = sorted_unique(*options.region);
+    if (sub_face_ids_.empty()) throw std::invalid_argument("region: expected at least one face");
+    if (sub_face_ids_.front() < 0 || sub_face_ids_.back() >= m) {
+      throw std::invalid_argument("region: face index out of range");
+    }
+  } else {
+    sub_face_ids_.resize(m);
+    for (int f = 0; f < m; ++f) sub_face_ids_[f] = f;
+  }
+  const int ms = static_cast<int>(sub_face_ids_.size());
+  for (int s = 0; s < ms; ++s) face_map[sub_face_ids_[s]] = s;
+  std::vector<int> vmap(n, -1);
+  // Without a region every vertex takes part (loose ones keep rest or pinned positions).
+  if (!options.region) std::fill(vmap.begin(), vmap.end(), 0);
+  for (int f : sub_face_ids_)
+    for (int l = 0; l < 3; ++l) vmap[faces(f, l)] = 0;
+  for (int v = 0; v < n; ++v) {
+    if (vmap[v] == 0) {
+      vmap[v] = static_cast<int>(sub_vertices_.size());
+      sub_vertices_.push_back(v);
+    }
+  }
+  sub_rest_.resize(static_cast<Eigen::Index>(sub_vertices_.size()), 3);
+  for (size_t s = 0; s < sub_vertices_.size(); ++s) {
+    sub_rest_.row(static_cast<Eigen::Index>(s)) = vertices.row(sub_vertices_[s]);
+  }
+  sub_faces_.resize(ms, 3);
+  shear_.resize(ms);
+  for (int s = 0; s < ms; ++s) {
+    for (int l = 0; l < 3; ++l) sub_faces_(s, l) = vmap[faces(sub_face_ids_[s], l)];
+    shear_(s) = shear(sub_face_ids_[s]);
+  }
+  if (options.region) {
+    std::vector<char> outside_use(n, 0);
+    for (int f = 0; f < m; ++f) {
+      if (face_map[f] < 0)
+        for (int l = 0; l < 3; ++l) outside_use[faces(f, l)] = 1;
+    }
+    for (size_t s = 0; s < sub_vertices_.size(); ++s) {
+      if (outside_use[sub_vertices_[s]]) boundary_.push_back(static_cast<int>(s));
+    }
+  }
   for (size_t a = 0; a < anchors.size(); ++a) {
+    std::vector<int> sub;
     for (int f : anchors[a]) {
-      for (int l = 0; l < 3; ++l) va.emplace_back(faces(f, l), static_cast<int>(a));
+      if (face_map[f] < 0) {
+        throw std::invalid_argument("anchors[" + std::to_string(a) + "]: face " +
+                                    std::to_string(f) + " is outside the region");
+      }
+      sub.push_back(face_map[f]);
+    }
+    anchors_.push_back(std::move(sub));
+  }
+  if (options.pinned) {
+    std::vector<int> p;
+    std::vector<char> seen(n, 0);
+    for (int v : *options.pinned) {
+      if (v < 0 || v >= n) throw std::invalid_argument("pinned: vertex index out of range");
+      if (seen[v]) throw std::invalid_argument("pinned: indices must be unique");
+      seen[v] = 1;
+      if (vmap[v] < 0) {
+        throw std::invalid_argument("pinned: vertex " + std::to_string(v) +
+                                    " is not part of the region");
+      }
+      if (std::binary_search(boundary_.begin(), boundary_.end(), vmap[v])) {
+        throw std::invalid_argument("pinned: vertex " + std::to_string(v) +
+                                    " lies on the region boundary, which stays at rest");
+      }
+      p.push_back(vmap[v]);
+    }
+    pinned_ = std::move(p);
+  }
+
+  // Dual edges inside the region keep their relative order under the monotone face map.
+  std::vector<Eigen::Index> rows;
+  for (Eigen::Index e = 0; e < dual.pairs.rows(); ++e) {
+    if (face_map[dual.pairs(e, 0)] >= 0 && face_map[dual.pairs(e, 1)] >= 0) rows.push_back(e);
+  }
+  IndexPairs sub_pairs(static_cast<Eigen::Index>(rows.size()), 2);
+  for (size_t r = 0; r < rows.size(); ++r) {
+    sub_pairs(static_cast<Eigen::Index>(r), 0) = face_map[dual.pairs(rows[r], 0)];
+    sub_pairs(static_cast<Eigen::Index>(r), 1) = face_map[dual.pairs(rows[r], 1)];
+  }
+  for (Eigen::Index c = 0; c < bend.cols(); ++c) {
+    Eigen::VectorXd phi(static_cast<Eigen::Index>(rows.size()));
+    for (size_t r = 0; r < rows.size(); ++r) phi(static_cast<Eigen::Index>(r)) = bend(rows[r], c);
+    axis_weights_.push_back(harmonic_weights(ms, sub_pairs, phi, anchors_));
+  }
+  mean_weights_ = axis_weights_[0];
+  if (axis_weights_.size() == 3) {
+    mean_weights_ = (axis_weights_[0] + axis_weights_[1] + axis_weights_[2]) / 3.0;
+  }
+  weights_full_ = RowMatrix::Zero(m, static_cast<Eigen::Index>(anchors.size()));
+  for (int s = 0; s < ms; ++s) weights_full_.row(sub_face_ids_[s]) = mean_weights_.row(s);
+
+  // Region vertex -> anchors that use it, for anchors following their full transform.
+  std::vector<std::pair<int, int>> va;
+  for (size_t a = 0; a < anchors_.size(); ++a) {
+    for (int f : anchors_[a]) {
+      for (int l = 0; l < 3; ++l) va.emplace_back(sub_faces_(f, l), static_cast<int>(a));
     }
   }
   std::sort(va.begin(), va.end());
@@ -58,17 +164,47 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
   }
   av_offsets_.push_back(static_cast<int>(va.size()));
 
-  follow_ = std::make_unique<PoissonRepositioner>(vertices, faces, shear,
-                                                  pinned_ ? *pinned_ : anchor_vertices_);
+  follow_ = std::make_unique<PoissonRepositioner>(sub_rest_, sub_faces_, shear_,
+                                                  fixed_set(pinned_ ? *pinned_ : anchor_vertices_));
 }
 
 MaterialDeformer::~MaterialDeformer() = default;
 
+std::vector<int> MaterialDeformer::fixed_set(const std::vector<int>& primary) const {
+  // Primary vertices first (in the caller's order), then region boundary vertices at rest.
+  // A boundary vertex is never also primary: the region edge must stay attached to the rest.
+  std::vector<int> out;
+  for (int v : primary) {
+    if (!std::binary_search(boundary_.begin(), boundary_.end(), v)) out.push_back(v);
+  }
+  out.insert(out.end(), boundary_.begin(), boundary_.end());
+  return out;
+}
+
 const PoissonRepositioner& MaterialDeformer::repositioner(bool follow) const {
   if (follow || pinned_) return *follow_;
-  if (!free_)
-    free_ = std::make_unique<PoissonRepositioner>(rest_, faces_, shear_, std::vector<int>{});
+  if (!free_) {
+    free_ = std::make_unique<PoissonRepositioner>(sub_rest_, sub_faces_, shear_, fixed_set({}));
+  }
   return *free_;
+}
+
+RowMatrix MaterialDeformer::axis_weights(int axis) const {
+  if (axis < 0 || axis > 2) throw std::invalid_argument("axis must be 0, 1 or 2");
+  const RowMatrix& w = axis_weights_[anisotropic() ? static_cast<size_t>(axis) : 0];
+  RowMatrix out = RowMatrix::Zero(weights_full_.rows(), weights_full_.cols());
+  for (size_t s = 0; s < sub_face_ids_.size(); ++s) {
+    out.row(sub_face_ids_[s]) = w.row(static_cast<Eigen::Index>(s));
+  }
+  return out;
+}
+
+Matrix3Array MaterialDeformer::face_transforms() const {
+  Matrix3Array out(static_cast<size_t>(weights_full_.rows()), Eigen::Matrix3d::Identity());
+  if (blended_.size() == sub_face_ids_.size()) {
+    for (size_t s = 0; s < sub_face_ids_.size(); ++s) out[sub_face_ids_[s]] = blended_[s];
+  }
+  return out;
 }
 
 Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
@@ -90,36 +226,51 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
                                   "] has a non-finite translation");
     }
   }
-  blend_all(logs, weights_, &blended_);
+  if (anisotropic()) {
+    blend_all_anisotropic(logs, axis_weights_[0], axis_weights_[1], axis_weights_[2], axes_,
+                          &blended_);
+  } else {
+    blend_all(logs, axis_weights_[0], &blended_);
+  }
 
   const PoissonRepositioner& rep = repositioner(has_translation);
   const std::vector<int>& fixed = rep.fixed();
   Vertices fixed_pos(static_cast<Eigen::Index>(fixed.size()), 3);
+  size_t s0 = 0;
   if (pinned_positions) {
     if (!pinned_) throw std::invalid_argument("pinned_positions given but no vertices are pinned");
-    fixed_pos = *pinned_positions;
-  } else {
-    // Anchor vertices follow the mean of their anchors' full transforms; others stay at rest.
-    for (size_t s = 0; s < fixed.size(); ++s) {
-      const int v = fixed[s];
-      const Eigen::Vector3d x = rest_.row(v).transpose();
-      Eigen::Vector3d p = x;
-      auto it = std::lower_bound(anchor_vertices_.begin(), anchor_vertices_.end(), v);
-      if (has_translation && it != anchor_vertices_.end() && *it == v) {
-        const size_t j = static_cast<size_t>(it - anchor_vertices_.begin());
-        p.setZero();
-        const int b = av_offsets_[j], e = av_offsets_[j + 1];
-        for (int t = b; t < e; ++t) {
-          const Eigen::Matrix4d& T = transforms[static_cast<size_t>(av_anchors_[t])];
-          p += T.topLeftCorner<3, 3>() * x + T.topRightCorner<3, 1>();
-        }
-        p /= static_cast<double>(e - b);
-      }
-      fixed_pos.row(static_cast<Eigen::Index>(s)) = p.transpose();
+    if (pinned_positions->rows() != static_cast<Eigen::Index>(pinned_->size())) {
+      throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
     }
+    fixed_pos.topRows(pinned_positions->rows()) = *pinned_positions;
+    s0 = pinned_->size();
   }
-  Vertices out;
-  rep.solve(blended_, fixed_pos, &out);
+  // Anchor vertices follow the mean of their anchors' full transforms; others stay at rest.
+  for (size_t s = s0; s < fixed.size(); ++s) {
+    const int v = fixed[s];
+    const Eigen::Vector3d x = sub_rest_.row(v).transpose();
+    Eigen::Vector3d p = x;
+    const bool boundary = std::binary_search(boundary_.begin(), boundary_.end(), v);
+    auto it = std::lower_bound(anchor_vertices_.begin(), anchor_vertices_.end(), v);
+    if (has_translation && !boundary && it != anchor_vertices_.end() && *it == v) {
+      const size_t j = static_cast<size_t>(it - anchor_vertices_.begin());
+      p.setZero();
+      const int b = av_offsets_[j], e = av_offsets_[j + 1];
+      for (int t = b; t < e; ++t) {
+        const Eigen::Matrix4d& T = transforms[static_cast<size_t>(av_anchors_[t])];
+        p += T.topLeftCorner<3, 3>() * x + T.topRightCorner<3, 1>();
+      }
+      p /= static_cast<double>(e - b);
+    }
+    fixed_pos.row(static_cast<Eigen::Index>(s)) = p.transpose();
+  }
+  Vertices sub_out;
+  rep.solve(blended_, fixed_pos, &sub_out);
+  if (sub_vertices_.size() == static_cast<size_t>(rest_.rows())) return sub_out;
+  Vertices out = rest_;
+  for (size_t s = 0; s < sub_vertices_.size(); ++s) {
+    out.row(sub_vertices_[s]) = sub_out.row(static_cast<Eigen::Index>(s));
+  }
   return out;
 }
 

@@ -174,7 +174,7 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   Kff.setFromTriplets(kff.begin(), kff.end());
   d.K_fp.resize(nf, static_cast<Eigen::Index>(d.fixed_all.size()));
   d.K_fp.setFromTriplets(kfp.begin(), kfp.end());
-  d.chol = std::make_unique<SparseCholesky>(Kff);
+  d.chol = std::make_unique<SparseCholesky>(Kff, /*minimize_fill=*/true);  // solved per pose
 
   // Gather lists so right-hand-side assembly runs in parallel without write races.
   d.inc_offset.assign(nf + 1, 0);
@@ -220,11 +220,11 @@ void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fix
   }
   const int nf = static_cast<int>(d.free_verts.size());
 
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (d.m > 20000)
   for (int i = 0; i < d.m; ++i) {
     if (d.usable[i]) d.local[i].noalias() = d.H[i] * targets[i].transpose();
   }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (d.m > 20000)
   for (int f = 0; f < nf; ++f) {
     Eigen::RowVector3d acc = Eigen::RowVector3d::Zero();
     for (int s = d.inc_offset[f]; s < d.inc_offset[f + 1]; ++s) {

@@ -9,8 +9,9 @@ namespace matdeform {
 class SparseCholesky {
  public:
   // A: symmetric positive definite; only its lower triangle is read. Throws std::runtime_error
-  // if CHOLMOD finds it not positive definite.
-  explicit SparseCholesky(const Eigen::SparseMatrix<double>& A);
+  // if CHOLMOD finds it not positive definite. minimize_fill spends more time on the ordering
+  // to make every later solve cheaper; use it for factors that are solved per pose.
+  SparseCholesky(const Eigen::SparseMatrix<double>& A, bool minimize_fill);
   ~SparseCholesky();
   SparseCholesky(const SparseCholesky&) = delete;
   SparseCholesky& operator=(const SparseCholesky&) = delete;

@@ -24,9 +24,24 @@ Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R) {
 }
 
 Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega) {
-  const double theta = omega.norm();
-  if (theta < 1e-300) return Eigen::Matrix3d::Identity();
-  return Eigen::AngleAxisd(theta, omega / theta).toRotationMatrix();
+  // Rodrigues: I + sin(t)/t K + (1-cos t)/t^2 K^2, with Taylor coefficients near t = 0 where
+  // the quotients lose precision (the series is exact to round-off below t^2 ~ 1e-8).
+  const double t2 = omega.squaredNorm();
+  double a, b;
+  if (t2 < 1e-8) {
+    a = 1.0 - t2 / 6.0;
+    b = 0.5 - t2 / 24.0;
+  } else {
+    const double t = std::sqrt(t2);
+    a = std::sin(t) / t;
+    b = (1.0 - std::cos(t)) / t2;
+  }
+  const double x = omega.x(), y = omega.y(), z = omega.z();
+  Eigen::Matrix3d R;
+  R << 1.0 - b * (y * y + z * z), -a * z + b * x * y, a * y + b * x * z,  //
+      a * z + b * x * y, 1.0 - b * (x * x + z * z), -a * x + b * y * z,   //
+      -a * y + b * x * z, a * x + b * y * z, 1.0 - b * (x * x + y * y);
+  return R;
 }
 
 void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
@@ -115,16 +130,50 @@ void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, 
       P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
       P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
     }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (m > 20000)
     for (Eigen::Index i = 0; i < m; ++i) {
-      const Eigen::Vector4d s = P * weights.row(i).transpose();
+      Eigen::Vector4d s = Eigen::Vector4d::Zero();
+      const double* w = weights.row(i).data();
+      for (Eigen::Index a = 0; a < k; ++a) s += w[a] * P.col(a);  // no temporaries
       (*out)[static_cast<size_t>(i)] = std::exp(s(3)) * rotation_exp(s.head<3>());
     }
     return;
   }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) if (m > 20000)
   for (Eigen::Index i = 0; i < m; ++i) {
     (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
+  }
+}
+
+void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                           const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                           Matrix3Array* out) {
+  const Eigen::Index m = wx.rows();
+  const Eigen::Index k = wx.cols();
+  if (static_cast<Eigen::Index>(logs.size()) != k || wy.rows() != m || wz.rows() != m ||
+      wy.cols() != k || wz.cols() != k) {
+    throw std::invalid_argument("blend_all_anisotropic: weight shapes do not match");
+  }
+  out->resize(static_cast<size_t>(m));
+  // Rotation logs in the axes' frame: row c holds every anchor's component along axis c.
+  Eigen::Matrix<double, 3, Eigen::Dynamic> C(3, k);
+  bool all_similar = true;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    C.col(a) = axes.transpose() * logs[static_cast<size_t>(a)].rotation;
+    all_similar = all_similar && logs[static_cast<size_t>(a)].similarity;
+  }
+#pragma omp parallel for schedule(static) if (m > 20000)
+  for (Eigen::Index i = 0; i < m; ++i) {
+    Eigen::Vector3d local = Eigen::Vector3d::Zero();
+    TransformLog sum;
+    sum.similarity = all_similar;
+    for (Eigen::Index a = 0; a < k; ++a) {
+      local += Eigen::Vector3d(wx(i, a), wy(i, a), wz(i, a)).cwiseProduct(C.col(a));
+      const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
+      sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
+    }
+    sum.rotation = axes * local;
+    (*out)[static_cast<size_t>(i)] = transform_exp(sum);
   }
 }
 

@@ -11,9 +11,10 @@ from .learn import (
     smooth_distortions,
     stiffness_from_distortion,
 )
-from .mesh import boundary_and_nonmanifold_edges, dual_edges
+from .mesh import boundary_and_nonmanifold_edges, dual_edges, faces_inside
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
+from .threads import num_threads, set_num_threads
 from .transforms import blend_transforms, polar_decompose, transform_exp, transform_log
 from .weights import harmonic_weights
 
@@ -27,11 +28,14 @@ __all__ = [
     "boundary_and_nonmanifold_edges",
     "deformation_gradients",
     "dual_edges",
+    "faces_inside",
     "harmonic_weights",
+    "num_threads",
     "learn_distortions",
     "learn_stiffness",
     "polar_decompose",
     "read_obj",
+    "set_num_threads",
     "shear_from_vertex",
     "smooth_distortions",
     "stiffness_from_distortion",

@@ -31,7 +31,13 @@ class MaterialDeformer:
     bend : (E,) float > 0 per dual edge in ``dual_edges(faces)`` order, or (n,) per vertex
         (averaged over each shared mesh edge). Default: phi_fg = (psi_f + psi_g)/2. If E == n
         the array is taken per dual edge; use ``bend_from_vertex`` to be explicit.
+        Anisotropic (paper Sec. 5): (E,3) or (n,3), one bending field per rotation axis.
     pinned : int array of vertex indices fixed in deform(), or None.
+    region : int array of face indices, the region of interest (paper Sec. 7), or None for the
+        whole mesh. Only these faces are solved; vertices they share with outside faces stay at
+        rest and outside vertices are untouched. Anchors and pinned vertices must lie inside.
+    axes : (3,3) rotation whose columns are the anisotropy axes x, y, z in mesh coordinates
+        (default: the mesh's own axes, as in the paper). Only used with (.,3) bend.
 
     Pinning rules
     -------------
@@ -49,30 +55,38 @@ class MaterialDeformer:
     no usable face keep their rest (or pinned) position. The output never contains NaN.
     """
 
-    def __init__(self, vertices, faces, anchors, shear=None, bend=None, pinned=None):
+    def __init__(
+        self, vertices, faces, anchors, shear=None, bend=None, pinned=None, region=None, axes=None
+    ):
         v = as_vertices(vertices)
         f = as_faces(faces, v.shape[0])
         n, m = v.shape[0], f.shape[0]
         anchor_list = as_anchors(anchors, m)
         pairs, shared = _core.dual_edges(f)
         psi = np.ones(m) if shear is None else as_stiffness(shear, m, "shear")
-        if bend is None:
-            phi = _core.bend_from_shear(pairs, psi)
-        else:
-            b = np.asarray(bend, dtype=np.float64)
-            if b.shape == (len(pairs),):
-                phi = as_stiffness(b, len(pairs), "bend")
-            elif b.shape == (n,):
-                phi = _core.bend_from_vertex(pairs, shared, as_stiffness(b, n, "bend"))
-            else:
-                raise ValueError(
-                    f"bend: expected shape ({len(pairs)},) per dual edge or ({n},) per vertex, "
-                    f"got {b.shape}"
-                )
+        phi = _bend_per_dual_edge(bend, psi, pairs, shared, n)
         self._pinned = None if pinned is None else as_index_set(pinned, n, "pinned")
+        roi = None if region is None else as_index_set(region, m, "region")
+        if roi is not None and roi.size == 0:
+            raise ValueError("region: expected at least one face")
+        if axes is None:
+            ax = np.eye(3)
+        else:
+            ax = np.asarray(axes, dtype=np.float64)
+            if ax.shape != (3, 3) or not np.isfinite(ax).all():
+                raise ValueError(f"axes: expected a finite (3,3) rotation, got shape {ax.shape}")
+            if not np.allclose(ax.T @ ax, np.eye(3), atol=1e-9) or np.linalg.det(ax) < 0:
+                raise ValueError("axes: columns must be orthonormal with det +1 (a rotation)")
         self._n, self._m, self._k = n, m, len(anchor_list)
         self._core = _core.MaterialDeformer(
-            v, f, anchor_list, psi, phi, None if self._pinned is None else self._pinned.tolist()
+            v,
+            f,
+            anchor_list,
+            psi,
+            phi,
+            None if self._pinned is None else self._pinned.tolist(),
+            None if roi is None else roi.tolist(),
+            ax,
         )
 
     def deform(self, transforms, pinned_positions=None) -> np.ndarray:
@@ -91,8 +105,19 @@ class MaterialDeformer:
 
     @property
     def weights(self) -> np.ndarray:
-        """(m,k) blending weights per face and anchor (read-only view)."""
+        """(m,k) blending weights per face and anchor (mean over axes when anisotropic)."""
         return self._core.weights
+
+    def axis_weights(self, axis: int) -> np.ndarray:
+        """(m,k) weights of rotation axis 0, 1 or 2 (equal to ``weights`` when isotropic)."""
+        if axis not in (0, 1, 2):
+            raise ValueError(f"axis: expected 0, 1 or 2, got {axis!r}")
+        return self._core.axis_weights(axis)
+
+    @property
+    def anisotropic(self) -> bool:
+        """True when built with one bending field per rotation axis."""
+        return self._core.anisotropic
 
     @property
     def face_transforms(self) -> np.ndarray:
@@ -115,3 +140,29 @@ class MaterialDeformer:
     @property
     def num_anchors(self) -> int:
         return self._k
+
+
+def _bend_per_dual_edge(bend, psi, pairs, shared, n) -> np.ndarray:
+    """Resolve the accepted bend layouts to (E,1) or (E,3) per dual edge."""
+    e = len(pairs)
+    if bend is None:
+        return _core.bend_from_shear(pairs, psi)[:, None]
+    b = np.asarray(bend, dtype=np.float64)
+    if b.ndim == 1:
+        b = b[:, None]
+    if b.ndim != 2 or b.shape[1] not in (1, 3) or b.shape[0] not in (e, n):
+        raise ValueError(
+            f"bend: expected shape ({e},) or ({e},3) per dual edge, or ({n},) or ({n},3) per "
+            f"vertex, got {np.shape(bend)}"
+        )
+    if not np.isfinite(b).all():
+        raise ValueError("bend: contains NaN or infinity")
+    if (b <= 0).any():
+        raise ValueError(f"bend: stiffness must be > 0 (min is {b.min()})")
+    if b.shape[0] == e:  # per dual edge wins when E == n
+        return np.ascontiguousarray(b)
+    cols = [
+        _core.bend_from_vertex(pairs, shared, np.ascontiguousarray(b[:, c]))
+        for c in range(b.shape[1])
+    ]
+    return np.ascontiguousarray(np.stack(cols, axis=1))

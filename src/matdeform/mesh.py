@@ -32,3 +32,18 @@ def boundary_and_nonmanifold_edges(faces) -> tuple[np.ndarray, np.ndarray]:
     e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     uniq, counts = np.unique(e, axis=0, return_counts=True)
     return uniq[counts == 1].astype(np.int64), uniq[counts > 2].astype(np.int64)
+
+
+def faces_inside(faces, vertex_ids) -> np.ndarray:
+    """Indices of the faces (m,3) whose three vertices all lie in vertex_ids. Returns (K,) int64.
+
+    Turns a vertex selection (a vertex group, a ball around a point) into anchor or region faces.
+    """
+    f = as_int_array(faces, "faces", 2)
+    ids = np.asarray(vertex_ids).ravel()
+    if ids.size and not np.issubdtype(ids.dtype, np.integer):
+        raise ValueError(f"vertex_ids: expected integer indices, got dtype {ids.dtype}")
+    inside = np.zeros(int(f.max()) + 1 if f.size else 0, dtype=bool)
+    ids = ids[(ids >= 0) & (ids < inside.size)]
+    inside[ids] = True
+    return np.flatnonzero(inside[f].all(axis=1)).astype(np.int64)

@@ -2,8 +2,6 @@
 
 #include <Eigen/Geometry>
 
-#include "matdeform/deformer.hpp"
-#include "matdeform/mesh.hpp"
 #include "matdeform/reposition.hpp"
 #include "test_meshes.hpp"
 
@@ -53,22 +51,4 @@ TEST(Reposition, DegenerateFacesAndLooseVerticesAreHandled) {
   rep.solve(Matrix3Array(F2.rows(), Eigen::Matrix3d::Identity()), Vertices(0, 3), &X);
   ASSERT_TRUE(X.allFinite());
   EXPECT_LT((X - V2).cwiseAbs().maxCoeff(), 1e-10);  // identity: everything at rest
-}
-
-TEST(Deformer, FollowModeReproducesCommonRigidTransform) {
-  Vertices V;
-  Faces F;
-  meshes::make_bar(10, 10.0, &V, &F);
-  const int m = static_cast<int>(F.rows());
-  const DualEdges dual = dual_edges(F);
-  MaterialDeformer d(V, F, {{m - 4, m - 3}, {m - 2, m - 1}}, Eigen::VectorXd::Ones(m),
-                     Eigen::VectorXd::Ones(dual.pairs.rows()), std::nullopt);
-  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
-  T.topLeftCorner<3, 3>() =
-      Eigen::AngleAxisd(2.9, Eigen::Vector3d(1, 1, 1).normalized()).toRotationMatrix();
-  T.topRightCorner<3, 1>() << 4, -2, 1;
-  const Vertices X = d.deform({T, T}, true, nullptr);
-  const Vertices expect =
-      (V * T.topLeftCorner<3, 3>().transpose()).rowwise() + T.topRightCorner<3, 1>().transpose();
-  EXPECT_LT((X - expect).cwiseAbs().maxCoeff(), 1e-9);
 }

@@ -116,3 +116,37 @@ TEST(Transforms, BlendAllFastPathMatchesGeneralPath) {
   }
   EXPECT_LT((out[3] - Eigen::Matrix3d::Identity()).norm(), 1e-15);  // zero weights: identity
 }
+
+TEST(Transforms, AnisotropicBlendWithEqualWeightsIsIsotropic) {
+  std::vector<TransformLog> logs = {
+      transform_log(
+          1.2 * Eigen::AngleAxisd(0.9, Eigen::Vector3d(1, 2, 3).normalized()).toRotationMatrix()),
+      transform_log(Eigen::AngleAxisd(2.0, Eigen::Vector3d::UnitY()).toRotationMatrix())};
+  RowMatrix W(3, 2);
+  W << 1, 0, 0.3, 0.7, 0.5, 0.5;
+  const Eigen::Matrix3d axes =
+      Eigen::AngleAxisd(0.4, Eigen::Vector3d(0, 1, 1).normalized()).toRotationMatrix();
+  Matrix3Array iso, ani;
+  blend_all(logs, W, &iso);
+  blend_all_anisotropic(logs, W, W, W, axes, &ani);
+  for (int i = 0; i < 3; ++i) EXPECT_LT((iso[i] - ani[i]).norm(), 1e-12);
+}
+
+TEST(Transforms, AnisotropicBlendSeparatesAxisComponents) {
+  // Anchor 1 rotates by (a, 0, c) about x and z. With x-weights 0 and z-weights 1 the face gets
+  // only the z part; the stretch uses the mean weight.
+  const double a = 0.8, c = -0.6;
+  TransformLog L1;
+  L1.rotation = Eigen::Vector3d(a, 0, c);
+  L1.log_stretch = std::log(2.0) * Eigen::Matrix3d::Identity();
+  std::vector<TransformLog> logs = {TransformLog{}, L1};
+  RowMatrix wx(1, 2), wy(1, 2), wz(1, 2);
+  wx << 1, 0;
+  wy << 0.5, 0.5;
+  wz << 0, 1;
+  Matrix3Array out;
+  blend_all_anisotropic(logs, wx, wy, wz, Eigen::Matrix3d::Identity(), &out);
+  const Eigen::Matrix3d expect =
+      std::pow(2.0, 0.5) * rotation_exp(Eigen::Vector3d(0, 0, c));  // mean weight 0.5
+  EXPECT_LT((out[0] - expect).norm(), 1e-12);
+}

@@ -57,7 +57,9 @@ def test_stiffness_errors(mesh):
         md.MaterialDeformer(v, f, [lo], shear=np.zeros(len(f)))
     with pytest.raises(ValueError, match="shear: contains NaN"):
         md.MaterialDeformer(v, f, [lo], shear=np.full(len(f), np.nan))
-    with pytest.raises(ValueError, match=r"bend: expected shape \(\d+,\) per dual edge"):
+    with pytest.raises(
+        ValueError, match=r"bend: expected shape \(\d+,\) or \(\d+,3\) per dual edge"
+    ):
         md.MaterialDeformer(v, f, [lo], bend=np.ones(3))
     with pytest.raises(ValueError, match="bend: stiffness must be > 0"):
         md.MaterialDeformer(v, f, [lo], bend=-np.ones(len(md.dual_edges(f))))

@@ -11,9 +11,20 @@ namespace matdeform {
 
 class PoissonRepositioner;
 
+struct DeformerOptions {
+  // Vertices fixed in deform() (full-mesh indices). See MaterialDeformer for the rules.
+  std::optional<std::vector<int>> pinned;
+  // Region of interest (paper Sec. 7): face indices. Only these faces are solved for; vertices
+  // shared with faces outside the region stay at rest, all other outside vertices are untouched.
+  std::optional<std::vector<int>> region;
+  // Anisotropy axes (Sec. 5): orthonormal columns x, y, z in mesh coordinates.
+  Eigen::Matrix3d axes = Eigen::Matrix3d::Identity();
+};
+
 // Precomputes everything that depends on the mesh, anchors and stiffness: the blending weights
-// (Eq. 1) and the factorisation of the repositioning system (Eq. 4). deform() then blends the
-// anchor transforms (Eq. 2), assembles the right-hand side and back-substitutes.
+// (Eq. 1, once per bending field) and the factorisation of the repositioning system (Eq. 4).
+// deform() then blends the anchor transforms (Eq. 2), assembles the right-hand side and
+// back-substitutes.
 //
 // Pinning:
 //  - pinned given: exactly those vertices are fixed in deform().
@@ -21,13 +32,14 @@ class PoissonRepositioner;
 //    anchor's full transform (factored in the constructor); with 3x3 transforms nothing is fixed
 //    and each component keeps its vertex mean at rest (factored on the first such call, then
 //    cached).
+//  - with a region, its boundary vertices are always fixed at rest in addition.
 class MaterialDeformer {
  public:
   // vertices (n,3); faces (m,3); anchors: k disjoint non-empty face lists; shear (m,) > 0;
-  // bend (E,) > 0 in dual_edges() order.
+  // bend (E,1) isotropic or (E,3) per rotation axis, > 0, rows in dual_edges() order.
   MaterialDeformer(const Vertices& vertices, const Faces& faces, const AnchorList& anchors,
-                   const Eigen::VectorXd& shear, const Eigen::VectorXd& bend,
-                   std::optional<std::vector<int>> pinned);
+                   const Eigen::VectorXd& shear, const RowMatrix& bend,
+                   const DeformerOptions& options = {});
   ~MaterialDeformer();
 
   // transforms: k 4x4 matrices (bottom row ignored). With has_translation false only the 3x3
@@ -35,25 +47,39 @@ class MaterialDeformer {
   Vertices deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
                   const Vertices* pinned_positions) const;
 
-  const RowMatrix& weights() const { return weights_; }  // (m,k)
-  // Per-face blended transforms T_i of the last deform() call.
-  const Matrix3Array& face_transforms() const { return blended_; }
+  // (m,k) blending weights on the full mesh (mean of the axes when anisotropic; zero rows
+  // outside the region).
+  const RowMatrix& weights() const { return weights_full_; }
+  // (m,k) weights of one rotation axis (0,1,2); equals weights() when isotropic.
+  RowMatrix axis_weights(int axis) const;
+  // Per-face blended transforms T_i of the last deform() call (identity outside the region).
+  Matrix3Array face_transforms() const;
   int num_anchors() const { return static_cast<int>(anchors_.size()); }
+  bool anisotropic() const { return axis_weights_.size() == 3; }
+  int num_region_vertices() const { return static_cast<int>(sub_vertices_.size()); }
 
  private:
   const PoissonRepositioner& repositioner(bool follow) const;
+  std::vector<int> fixed_set(const std::vector<int>& primary) const;
 
-  Vertices rest_;
-  Faces faces_;
-  AnchorList anchors_;
-  Eigen::VectorXd shear_;
-  std::optional<std::vector<int>> pinned_;
-  RowMatrix weights_;
-  // Vertex -> anchors whose faces use it (for following anchors), CSR.
-  std::vector<int> anchor_vertices_;                     // unique, sorted
-  std::vector<int> av_offsets_, av_anchors_;             // per anchor_vertices_ entry
-  mutable std::unique_ptr<PoissonRepositioner> follow_;  // anchor vertices (or pinned) fixed
-  mutable std::unique_ptr<PoissonRepositioner> free_;    // nothing fixed (pinned empty, 3x3)
+  Vertices rest_;                           // full mesh
+  Vertices sub_rest_;                       // region only
+  Faces sub_faces_;                         // region faces, region vertex indices
+  std::vector<int> sub_vertices_;           // region vertex -> full vertex
+  std::vector<int> sub_face_ids_;           // region face -> full face
+  std::vector<int> boundary_;               // region vertex ids kept at rest
+  AnchorList anchors_;                      // region face ids
+  Eigen::VectorXd shear_;                   // region faces
+  std::optional<std::vector<int>> pinned_;  // region vertex ids
+  Eigen::Matrix3d axes_;
+  std::vector<RowMatrix> axis_weights_;  // 1 (isotropic) or 3, each (m_region,k)
+  RowMatrix mean_weights_;               // (m_region,k)
+  RowMatrix weights_full_;               // (m,k)
+  // Region vertex -> anchors that use it, CSR over the sorted anchor_vertices_.
+  std::vector<int> anchor_vertices_;
+  std::vector<int> av_offsets_, av_anchors_;
+  mutable std::unique_ptr<PoissonRepositioner> follow_;
+  mutable std::unique_ptr<PoissonRepositioner> free_;
   mutable Matrix3Array blended_;
 };
 

@@ -44,4 +44,12 @@ Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* 
 // Blends for all faces: weights is (m,k), output m matrices. Parallel over faces.
 void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out);
 
+// Anisotropic blend (paper Sec. 5). Each anchor rotation log is split into its components along
+// the columns of `axes` (c_x = <log Q, log R_x> up to the basis normalisation); component x is
+// blended with weights wx, and so on. The stretch part uses the mean of the three weights.
+// All weight matrices are (m,k). With wx = wy = wz this equals blend_all.
+void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                           const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                           Matrix3Array* out);
+
 }  // namespace matdeform

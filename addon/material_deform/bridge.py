@@ -1,0 +1,424 @@
+"""The only module that reads or writes Blender data (meshes, groups, attributes, shape keys,
+Empties). Everything here converts between bpy and flat numpy arrays."""
+
+from __future__ import annotations
+
+import contextlib
+import ctypes
+from dataclasses import dataclass
+
+import bmesh
+import bpy
+import numpy as np
+from mathutils import Matrix, Vector
+
+from .stiffness_map import loop_polygon_index
+
+OUTPUT_KEY = "Material Deform"
+BAKE_PREFIX = "MD Bake "
+SHEAR_ATTR = "md_shear_stiffness"
+BEND_ATTR = "md_bend_stiffness"
+DISPLAY_ATTR = "md_stiffness_display"
+
+
+@dataclass
+class MeshArrays:
+    """Flat topology of a mesh: triangles (via loop triangles) and polygon/loop/edge arrays."""
+
+    rest: np.ndarray  # (n,3) float64 rest positions (Basis key if there are shape keys)
+    tris: np.ndarray  # (m,3) int64
+    tri_poly: np.ndarray  # (m,) polygon of each loop triangle
+    loop_start: np.ndarray
+    loop_total: np.ndarray
+    loop_vert: np.ndarray
+    loop_edge: np.ndarray
+    edge_verts: np.ndarray  # (e,2)
+
+    @property
+    def n_polys(self) -> int:
+        return len(self.loop_start)
+
+
+def _get(seq, attr, n, dtype, width=1):
+    out = np.empty(n * width, dtype=dtype)
+    seq.foreach_get(attr, out)
+    return out.reshape(n, width) if width > 1 else out
+
+
+def is_mesh(obj) -> bool:
+    return obj is not None and obj.type == "MESH"
+
+
+def _rest_source(mesh):
+    keys = mesh.shape_keys
+    if keys is not None and keys.reference_key is not None:
+        return keys.reference_key.data
+    return mesh.vertices
+
+
+def rest_positions_f32(mesh) -> np.ndarray:
+    """Exact stored rest coordinates (float32, as Blender keeps them)."""
+    return _get(_rest_source(mesh), "co", len(mesh.vertices), np.float32, 3)
+
+
+def rest_positions(mesh) -> np.ndarray:
+    return rest_positions_f32(mesh).astype(np.float64)
+
+
+def mesh_arrays(mesh) -> MeshArrays:
+    mesh.calc_loop_triangles()
+    m = len(mesh.loop_triangles)
+    n_loops = len(mesh.loops)
+    p = len(mesh.polygons)
+    return MeshArrays(
+        rest=rest_positions(mesh),
+        tris=_get(mesh.loop_triangles, "vertices", m, np.int32, 3).astype(np.int64),
+        tri_poly=_get(mesh.loop_triangles, "polygon_index", m, np.int32).astype(np.int64),
+        loop_start=_get(mesh.polygons, "loop_start", p, np.int32).astype(np.int64),
+        loop_total=_get(mesh.polygons, "loop_total", p, np.int32).astype(np.int64),
+        loop_vert=_get(mesh.loops, "vertex_index", n_loops, np.int32).astype(np.int64),
+        loop_edge=_get(mesh.loops, "edge_index", n_loops, np.int32).astype(np.int64),
+        edge_verts=_get(mesh.edges, "vertices", len(mesh.edges), np.int32, 2).astype(np.int64),
+    )
+
+
+def counts(mesh) -> tuple[int, int, int, int]:
+    """Cheap topology signature checked on every live update."""
+    return len(mesh.vertices), len(mesh.edges), len(mesh.loops), len(mesh.polygons)
+
+
+# --- vertex groups / attributes -------------------------------------------------------------
+
+
+def vertex_group_weights(obj, names) -> dict[str, np.ndarray]:
+    """Weights of the named vertex groups, one pass over the vertices. Missing groups are left
+    out of the result; vertices not in a group get -1 so membership (>= 0) stays visible."""
+    n = len(obj.data.vertices)
+    index = {}
+    for name in names:
+        vg = obj.vertex_groups.get(name)
+        if vg is not None:
+            index[vg.index] = name
+    out = {name: np.full(n, -1.0) for name in index.values()}
+    if not index:
+        return out
+    for v in obj.data.vertices:
+        for g in v.groups:
+            name = index.get(g.group)
+            if name is not None:
+                out[name][v.index] = g.weight
+    return out
+
+
+def has_vertex_group(obj, name) -> bool:
+    return obj.vertex_groups.get(name) is not None
+
+
+def color_attribute_names(mesh) -> list[str]:
+    return [a.name for a in mesh.color_attributes if a.name != DISPLAY_ATTR]
+
+
+def color_attribute_vertex_rgba(mesh, name):
+    """Per-vertex sRGB colour of a colour attribute (corner colours averaged per vertex);
+    None if the attribute does not exist."""
+    attr = mesh.color_attributes.get(name)
+    if attr is None:
+        return None
+    n = len(attr.data)
+    field = "color_srgb" if hasattr(attr.data[0] if n else None, "color_srgb") else "color"
+    rgba = _get(attr.data, field, n, np.float32, 4).astype(np.float64)
+    if attr.domain == "POINT":
+        return rgba
+    nv = len(mesh.vertices)
+    lv = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
+    out = np.zeros((nv, 4))
+    for c in range(4):
+        out[:, c] = np.bincount(lv, weights=rgba[:, c], minlength=nv)
+    cnt = np.bincount(lv, minlength=nv)
+    return out / np.maximum(cnt, 1)[:, None]
+
+
+def write_float_attribute(mesh, name, domain, values) -> None:
+    attr = mesh.attributes.get(name)
+    if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT"):
+        mesh.attributes.remove(attr)
+        attr = None
+    if attr is None:
+        attr = mesh.attributes.new(name, "FLOAT", domain)
+    attr.data.foreach_set("value", np.asarray(values, dtype=np.float32))
+    mesh.update()
+
+
+def read_float_attribute(mesh, name, domain, n):
+    attr = mesh.attributes.get(name)
+    if attr is None or attr.domain != domain or attr.data_type != "FLOAT" or len(attr.data) != n:
+        return None
+    return _get(attr.data, "value", n, np.float32).astype(np.float64)
+
+
+def write_face_colors(mesh, name, face_rgba, loop_poly) -> None:
+    """Per-face colours as a corner colour attribute (colour attributes have no face domain),
+    made active so Attribute viewport shading shows it."""
+    attr = mesh.color_attributes.get(name)
+    if attr is None:
+        attr = mesh.color_attributes.new(name, "BYTE_COLOR", "CORNER")
+    rgba = np.asarray(face_rgba, dtype=np.float32)[loop_poly]
+    field = "color_srgb" if len(attr.data) and hasattr(attr.data[0], "color_srgb") else "color"
+    attr.data.foreach_set(field, rgba.ravel())
+    with contextlib.suppress(AttributeError, TypeError):
+        mesh.color_attributes.active_color = attr
+    with contextlib.suppress(AttributeError, TypeError):
+        mesh.attributes.active_color = attr
+    mesh.update()
+
+
+def show_attribute_shading(context) -> bool:
+    """Switch open 3D viewports to Solid + Attribute colour. False if there is no viewport
+    (background mode)."""
+    done = False
+    screen = getattr(context, "screen", None)
+    if screen is None:
+        return False
+    for area in screen.areas:
+        if area.type != "VIEW_3D":
+            continue
+        for space in area.spaces:
+            if space.type == "VIEW_3D":
+                space.shading.type = "SOLID"
+                space.shading.color_type = "VERTEX"
+                done = True
+    return done
+
+
+# --- selection, groups, Empties ---------------------------------------------------------------
+
+
+@contextlib.contextmanager
+def object_mode(context, obj):
+    """Temporarily leave Edit Mode so mesh and vertex-group data are in sync."""
+    mode = obj.mode
+    if mode == "EDIT":
+        bpy.ops.object.mode_set(mode="OBJECT")
+    try:
+        yield
+    finally:
+        if mode == "EDIT" and context.view_layer.objects.active == obj:
+            bpy.ops.object.mode_set(mode="EDIT")
+
+
+def selected_polygons(mesh) -> np.ndarray:
+    return _get(mesh.polygons, "select", len(mesh.polygons), bool)
+
+
+def polygon_centers_normals_areas(mesh):
+    p = len(mesh.polygons)
+    return (
+        _get(mesh.polygons, "center", p, np.float32, 3).astype(np.float64),
+        _get(mesh.polygons, "normal", p, np.float32, 3).astype(np.float64),
+        _get(mesh.polygons, "area", p, np.float32).astype(np.float64),
+    )
+
+
+def selection_frame(obj, sel):
+    """Vertices of the selected polygons, their area-weighted centroid and average normal in
+    world space, and a radius for sizing the Empty."""
+    mesh = obj.data
+    centers, normals, areas = polygon_centers_normals_areas(mesh)
+    w = areas[sel] / max(areas[sel].sum(), 1e-30)
+    c_local = (centers[sel] * w[:, None]).sum(axis=0)
+    n_local = (normals[sel] * areas[sel][:, None]).sum(axis=0)
+    m = world_matrix(obj)
+    c_world = (m @ np.append(c_local, 1.0))[:3]
+    n_world = np.linalg.inv(m[:3, :3]).T @ n_local
+    p = len(mesh.polygons)
+    lv = _get(mesh.loops, "vertex_index", len(mesh.loops), np.int32)
+    starts = _get(mesh.polygons, "loop_start", p, np.int32)
+    lp = loop_polygon_index(starts, _get(mesh.polygons, "loop_total", p, np.int32))
+    verts = np.unique(lv[sel[lp]])
+    radius = float(np.linalg.norm(centers[sel] - c_local, axis=1).max(initial=0.0))
+    return verts, c_world, n_world, radius
+
+
+def set_vertex_group(obj, name, vertex_indices):
+    vg = obj.vertex_groups.get(name)
+    if vg is None:
+        vg = obj.vertex_groups.new(name=name)
+    vg.add([int(i) for i in vertex_indices], 1.0, "REPLACE")
+    return vg.name
+
+
+def unique_group_name(obj, base) -> str:
+    name, i = base, 1
+    while obj.vertex_groups.get(name) is not None:
+        name = f"{base}.{i:03d}"
+        i += 1
+    return name
+
+
+def select_polygons_edit(obj, mask) -> None:
+    """Select exactly the masked polygons; the object must be in Edit Mode. Goes through
+    bmesh: writing edge selection through RNA segfaults Blender 5.0.1."""
+    mask = np.asarray(mask, dtype=bool)
+    bm = bmesh.from_edit_mesh(obj.data)
+    for seq in (bm.verts, bm.edges, bm.faces):
+        for elem in seq:
+            elem.select = False
+    bm.faces.ensure_lookup_table()
+    for i in np.flatnonzero(mask):
+        bm.faces[int(i)].select_set(True)
+    bm.select_flush_mode()
+    bmesh.update_edit_mesh(obj.data)
+
+
+def create_empty(context, name, location, normal, size, near_obj):
+    """Empty at ``location`` (world) with its Z axis along ``normal`` (world), linked into the
+    mesh object's first collection."""
+    empty = bpy.data.objects.new(name, None)
+    empty.empty_display_type = "ARROWS"
+    empty.empty_display_size = max(float(size), 1e-3)
+    n = Vector(normal)
+    rot = n.to_track_quat("Z", "Y").to_matrix().to_4x4() if n.length > 1e-12 else Matrix()
+    empty.matrix_world = Matrix.Translation(Vector(location)) @ rot
+    coll = near_obj.users_collection[0] if near_obj.users_collection else context.collection
+    coll.objects.link(empty)
+    return empty
+
+
+def matrix_np(mat) -> np.ndarray:
+    return np.array(mat, dtype=np.float64)
+
+
+def world_matrix(obj, depsgraph=None):
+    """World matrix, evaluated in ``depsgraph`` if given. None if the object is not part of that
+    depsgraph (e.g. an Empty disabled for renders, in a render's depsgraph)."""
+    if depsgraph is not None:
+        ev = obj.evaluated_get(depsgraph)
+        if not ev.is_evaluated:
+            return None
+        obj = ev
+    return np.array(obj.matrix_world, dtype=np.float64)
+
+
+def object_in_scene(obj, scene) -> bool:
+    return obj is not None and scene.objects.get(obj.name) is obj
+
+
+# --- shape keys -------------------------------------------------------------------------------
+
+
+def ensure_output_key(obj, name=OUTPUT_KEY):
+    """Return (key_block, created_basis). Creates a Basis (copy of the mesh) if there were no
+    shape keys, so the rest shape itself is never written to."""
+    created = False
+    if obj.data.shape_keys is None:
+        obj.shape_key_add(name="Basis", from_mix=False)
+        created = True
+    kb = obj.data.shape_keys.key_blocks.get(name)
+    if kb is None:
+        kb = obj.shape_key_add(name=name, from_mix=False)
+        # keep edits going to the Basis, not to the output
+        obj.active_shape_key_index = 0
+    kb.value = 1.0
+    kb.mute = False
+    return kb, created
+
+
+def output_key(obj, name=OUTPUT_KEY):
+    keys = obj.data.shape_keys
+    return None if keys is None else keys.key_blocks.get(name)
+
+
+def write_key(obj, kb, positions) -> None:
+    """Hot path: one bulk copy into the shape key plus a depsgraph tag.
+
+    ``KeyBlock.data.foreach_set`` goes item by item (~8 ms for 25k vertices), too slow for
+    live use. Blender 4.1+ has ``KeyBlock.points`` with a bulk path; older versions get a
+    memmove into the key's float[3] array after checking that it really is one contiguous
+    block of the expected size, else the slow path.
+    """
+    flat = np.ascontiguousarray(positions, dtype=np.float32).ravel()
+    points = getattr(kb, "points", None)
+    if points is not None:
+        points.foreach_set("co", flat)
+    elif not _raw_copy_into_key(kb, flat):
+        kb.data.foreach_set("co", flat)
+    obj.data.update_tag()
+    obj.update_tag(refresh={"DATA"})
+
+
+def _raw_copy_into_key(kb, flat) -> bool:
+    data = kb.data
+    n = len(data)
+    if n == 0 or flat.size != 3 * n:
+        return n == 0 and flat.size == 0
+    first, last = data[0].as_pointer(), data[n - 1].as_pointer()
+    if first == 0 or last - first != 12 * (n - 1):
+        return False
+    ctypes.memmove(first, flat.ctypes.data, flat.nbytes)
+    return True
+
+
+def read_key(kb) -> np.ndarray:
+    points = getattr(kb, "points", None)
+    return _get(points if points is not None else kb.data, "co", len(kb.data), np.float32, 3)
+
+
+def evaluated_positions(obj, depsgraph) -> np.ndarray:
+    """Positions after shape keys and modifiers (what the user sees)."""
+    ev = obj.evaluated_get(depsgraph)
+    me = ev.to_mesh()
+    try:
+        return _get(me.vertices, "co", len(me.vertices), np.float32, 3)
+    finally:
+        ev.to_mesh_clear()
+
+
+def remove_output(obj, remove_basis: bool) -> None:
+    kb = output_key(obj)
+    if kb is not None:
+        obj.shape_key_remove(kb)
+    keys = obj.data.shape_keys
+    if remove_basis and keys is not None and len(keys.key_blocks) == 1:
+        # removing the last (reference) key writes its coordinates back to the mesh verbatim
+        obj.shape_key_remove(keys.key_blocks[0])
+
+
+def bake_key(obj, frame, positions) -> str:
+    name = f"{BAKE_PREFIX}{frame:04d}"
+    keys = obj.data.shape_keys
+    old = keys.key_blocks.get(name) if keys is not None else None
+    if old is not None:
+        obj.shape_key_remove(old)
+    kb = obj.shape_key_add(name=name, from_mix=False)
+    kb.data.foreach_set("co", np.asarray(positions, dtype=np.float32).ravel())
+    for f, v in ((frame - 1, 0.0), (frame, 1.0), (frame + 1, 0.0)):
+        kb.value = v
+        kb.keyframe_insert("value", frame=f)
+    obj.active_shape_key_index = 0
+    return name
+
+
+def set_output_value(obj, value: float) -> None:
+    kb = output_key(obj)
+    if kb is not None:
+        kb.value = value
+
+
+def frame_set(scene, frame) -> None:
+    scene.frame_set(frame)
+
+
+def evaluated_depsgraph(context):
+    return context.evaluated_depsgraph_get()
+
+
+def status(context, text) -> None:
+    ws = getattr(context, "workspace", None)
+    if ws is not None:
+        with contextlib.suppress(Exception):
+            ws.status_text_set(text)
+
+
+def evaluated_depsgraph_from_scene(scene):
+    """Depsgraph of the current view layer (the one frame_set just evaluated)."""
+    return bpy.context.evaluated_depsgraph_get()

@@ -1,0 +1,65 @@
+"""Live updates: Empties moved interactively (depsgraph) or by animation (frame change, also
+in background renders), and rebuilding solvers after a .blend is loaded."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.app.handlers import persistent
+
+from . import session
+
+_busy = False  # our own shape-key write triggers another depsgraph update
+
+
+def _run(scene, depsgraph):
+    global _busy
+    if _busy or scene is None:
+        return
+    _busy = True
+    try:
+        session.live_update(scene, depsgraph)
+    finally:
+        _busy = False
+
+
+@persistent
+def on_depsgraph_update(scene, depsgraph=None):
+    _run(scene, None)
+
+
+@persistent
+def on_frame_change(scene, depsgraph=None):
+    _run(scene, depsgraph)
+
+
+@persistent
+def on_load(_filepath=None, *_args):
+    # Pointers from the previous file are meaningless now. Rebuild solvers (only if the saved
+    # fingerprints still match) but do not deform yet: world matrices are not evaluated during
+    # load_post, the first depsgraph update after loading does that.
+    session.clear_cache()
+    scene = bpy.context.scene
+    if scene is not None:
+        session.prepare_scene(scene)
+
+
+_HANDLERS = (
+    ("depsgraph_update_post", on_depsgraph_update),
+    ("frame_change_post", on_frame_change),
+    ("load_post", on_load),
+)
+
+
+def register():
+    for name, fn in _HANDLERS:
+        lst = getattr(bpy.app.handlers, name)
+        if fn not in lst:
+            lst.append(fn)
+
+
+def unregister():
+    for name, fn in _HANDLERS:
+        lst = getattr(bpy.app.handlers, name)
+        if fn in lst:
+            lst.remove(fn)
+    session.clear_cache()

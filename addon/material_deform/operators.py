@@ -1,0 +1,294 @@
+"""Operators. Each one validates first and reports a clear error without touching the mesh."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import EnumProperty, IntProperty, StringProperty
+
+from . import bridge, session
+from .anchor_math import anchor_polygons
+from .session import BindError
+from .stiffness_map import loop_polygon_index
+
+
+def _mesh_object(context):
+    obj = context.object
+    return obj if bridge.is_mesh(obj) else None
+
+
+class _MeshOperator:
+    bl_options = {"REGISTER", "UNDO"}
+
+    @classmethod
+    def poll(cls, context):
+        return _mesh_object(context) is not None
+
+
+class _Progress:
+    """wm.progress_* plus status-bar text; safe in background mode."""
+
+    def __init__(self, context):
+        self.context = context
+        self.wm = context.window_manager
+
+    def __enter__(self):
+        self.wm.progress_begin(0, 100)
+        return self
+
+    def __call__(self, fraction, text):
+        self.wm.progress_update(int(100 * fraction))
+        bridge.status(self.context, text or None)
+
+    def __exit__(self, *_exc):
+        self.wm.progress_end()
+        bridge.status(self.context, None)
+        return False
+
+
+class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Operator):
+    """Convert the painted vertex group / color attribute into per-face shear and per-edge
+    bending stiffness attributes (log scale: 0 = flexible, 1 = stiff)"""
+
+    bl_idname = "mesh.material_deform_stiffness_from_paint"
+    bl_label = "Stiffness from Paint"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        try:
+            with bridge.object_mode(context, obj):
+                _paint, psi, _phi = session.stiffness_from_paint(obj)
+                reason = session.full_check(obj, context.scene)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        msg = f"Stiffness: {len(psi)} faces, range {psi.min():.3g} .. {psi.max():.3g}"
+        self.report({"WARNING"} if reason else {"INFO"}, reason or msg)
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_show_stiffness(_MeshOperator, bpy.types.Operator):
+    """Show the stored stiffness as colours (blue = flexible, red = stiff)"""
+
+    bl_idname = "mesh.material_deform_show_stiffness"
+    bl_label = "Show Stiffness"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        try:
+            with bridge.object_mode(context, obj):
+                session.show_stiffness(obj)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        bridge.show_attribute_shading(context)
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_add_anchor(_MeshOperator, bpy.types.Operator):
+    """Make the selected faces an anchor: a vertex group plus an Empty at their centroid,
+    oriented along their average normal"""
+
+    bl_idname = "mesh.material_deform_add_anchor"
+    bl_label = "Add Anchor"
+
+    mode: EnumProperty(
+        name="Mode",
+        items=(("POSITION", "Follow Empty", ""), ("ROTATION", "Rotation + Scale", "")),
+        default="POSITION",
+    )
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        s = obj.material_deform
+        with bridge.object_mode(context, obj):
+            mesh = obj.data
+            sel = bridge.selected_polygons(mesh)
+            if not sel.any():
+                self.report({"ERROR"}, "Select the anchor faces in Edit Mode first")
+                return {"CANCELLED"}
+            verts, c_world, n_world, radius = bridge.selection_frame(obj, sel)
+            group = bridge.set_vertex_group(obj, bridge.unique_group_name(obj, "Anchor"), verts)
+            empty = bridge.create_empty(
+                context, f"{obj.name} {group}", c_world, n_world, max(radius, 0.1), obj
+            )
+            anc = s.anchors.add()
+            anc.name = group
+            anc.vertex_group = group
+            anc.empty = empty
+            anc.mode = self.mode
+            s.active_anchor_index = len(s.anchors) - 1
+        if s.bound:
+            self.report({"WARNING"}, "Anchor added: click Bind again to use it")
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_remove_anchor(_MeshOperator, bpy.types.Operator):
+    """Remove the active anchor (its vertex group and Empty are kept)"""
+
+    bl_idname = "mesh.material_deform_remove_anchor"
+    bl_label = "Remove Anchor"
+
+    index: IntProperty(default=-1, options={"SKIP_SAVE"})
+
+    def execute(self, context):
+        s = _mesh_object(context).material_deform
+        i = self.index if self.index >= 0 else s.active_anchor_index
+        if not 0 <= i < len(s.anchors):
+            self.report({"ERROR"}, "No anchor to remove")
+            return {"CANCELLED"}
+        s.anchors.remove(i)
+        s.active_anchor_index = max(0, min(i, len(s.anchors) - 1))
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_select_anchor(_MeshOperator, bpy.types.Operator):
+    """Select the faces of the active anchor (and its Empty)"""
+
+    bl_idname = "mesh.material_deform_select_anchor"
+    bl_label = "Select Anchor Faces"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        s = obj.material_deform
+        if not 0 <= s.active_anchor_index < len(s.anchors):
+            self.report({"ERROR"}, "No active anchor")
+            return {"CANCELLED"}
+        anc = s.anchors[s.active_anchor_index]
+        if obj.mode == "EDIT":
+            bpy.ops.object.mode_set(mode="OBJECT")  # sync groups before reading them
+        w = bridge.vertex_group_weights(obj, [anc.vertex_group]).get(anc.vertex_group)
+        if w is None:
+            self.report({"ERROR"}, f"Vertex group '{anc.vertex_group}' not found")
+            return {"CANCELLED"}
+        a = bridge.mesh_arrays(obj.data)
+        lp = loop_polygon_index(a.loop_start, a.loop_total)
+        mask = anchor_polygons(w >= 0, a.loop_vert, lp, a.n_polys)
+        bpy.ops.object.mode_set(mode="EDIT")
+        bridge.select_polygons_edit(obj, mask)
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_bind(_MeshOperator, bpy.types.Operator):
+    """Precompute the material-aware deformation for the current anchors and stiffness"""
+
+    bl_idname = "mesh.material_deform_bind"
+    bl_label = "Bind"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        if obj.mode != "OBJECT":
+            bpy.ops.object.mode_set(mode="OBJECT")
+        try:
+            with _Progress(context) as progress:
+                entry = session.bind(obj, context.scene, progress)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Bound {len(entry.rest)} vertices, {entry.n_anchors} anchor(s)")
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_update(_MeshOperator, bpy.types.Operator):
+    """Recompute the deformation from the current Empty transforms now"""
+
+    bl_idname = "mesh.material_deform_update"
+    bl_label = "Update"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        try:
+            if session.full_check(obj, context.scene):
+                raise BindError(session.stale_reason(obj))
+            session.apply(obj, context.scene, context.evaluated_depsgraph_get(), force=True)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_reset(_MeshOperator, bpy.types.Operator):
+    """Remove the deformation and the bind: the mesh gets its exact rest shape back"""
+
+    bl_idname = "mesh.material_deform_reset"
+    bl_label = "Reset"
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        if obj.mode != "OBJECT":
+            bpy.ops.object.mode_set(mode="OBJECT")
+        session.unbind(obj)
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_bake(_MeshOperator, bpy.types.Operator):
+    """Bake the deformation over a frame range into keyframed shape keys (one per frame)"""
+
+    bl_idname = "mesh.material_deform_bake"
+    bl_label = "Bake"
+
+    frame_start: IntProperty(name="Start", default=-1, options={"SKIP_SAVE"})
+    frame_end: IntProperty(name="End", default=-1, options={"SKIP_SAVE"})
+
+    def execute(self, context):
+        obj = _mesh_object(context)
+        s = obj.material_deform
+        start = self.frame_start if self.frame_start >= 0 else s.bake_start
+        end = self.frame_end if self.frame_end >= 0 else s.bake_end
+        if end < start:
+            self.report({"ERROR"}, f"Bake range is empty ({start}..{end})")
+            return {"CANCELLED"}
+        try:
+            if session.full_check(obj, context.scene):
+                raise BindError(session.stale_reason(obj))
+            with _Progress(context) as progress:
+                names = session.bake(obj, context.scene, range(start, end + 1), progress)
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+        self.report({"INFO"}, f"Baked {len(names)} frame(s); Live turned off")
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_assign_empty(_MeshOperator, bpy.types.Operator):
+    """Assign an existing Empty to the active anchor"""
+
+    bl_idname = "mesh.material_deform_assign_empty"
+    bl_label = "Assign Empty"
+
+    empty: StringProperty(name="Empty")
+
+    def execute(self, context):
+        s = _mesh_object(context).material_deform
+        emp = bpy.data.objects.get(self.empty)
+        if emp is None or emp.type != "EMPTY":
+            self.report({"ERROR"}, f"'{self.empty}' is not an Empty")
+            return {"CANCELLED"}
+        if not 0 <= s.active_anchor_index < len(s.anchors):
+            self.report({"ERROR"}, "No active anchor")
+            return {"CANCELLED"}
+        s.anchors[s.active_anchor_index].empty = emp
+        return {"FINISHED"}
+
+
+classes = (
+    MESH_OT_material_deform_stiffness_from_paint,
+    MESH_OT_material_deform_show_stiffness,
+    MESH_OT_material_deform_add_anchor,
+    MESH_OT_material_deform_remove_anchor,
+    MESH_OT_material_deform_select_anchor,
+    MESH_OT_material_deform_assign_empty,
+    MESH_OT_material_deform_bind,
+    MESH_OT_material_deform_update,
+    MESH_OT_material_deform_reset,
+    MESH_OT_material_deform_bake,
+)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+
+
+def unregister():
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,111 @@
+"""Add-on settings stored on the Object (saved in the .blend)."""
+
+from __future__ import annotations
+
+import bpy
+from bpy.props import (
+    BoolProperty,
+    CollectionProperty,
+    EnumProperty,
+    FloatProperty,
+    FloatVectorProperty,
+    IntProperty,
+    PointerProperty,
+    StringProperty,
+)
+
+
+def _anchor_changed(self, _context):
+    from . import session  # late: session imports the core lazily, keep registration light
+
+    session.mark_stale(self.id_data, "Anchors changed since bind - click Bind again")
+
+
+IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
+
+
+def _is_empty(_self, obj):
+    return obj.type == "EMPTY"
+
+
+class MaterialDeformAnchor(bpy.types.PropertyGroup):
+    name: StringProperty(name="Name", default="Anchor")
+    vertex_group: StringProperty(
+        name="Vertex Group",
+        description="Anchor faces: polygons whose vertices are all in it",
+        update=_anchor_changed,
+    )
+    empty: PointerProperty(
+        name="Empty",
+        type=bpy.types.Object,
+        poll=_is_empty,
+        description="Controller of the anchor",
+        update=_anchor_changed,
+    )
+    mode: EnumProperty(
+        name="Mode",
+        items=(
+            ("POSITION", "Follow Empty", "Anchor faces follow the Empty's full transform"),
+            (
+                "ROTATION",
+                "Rotation + Scale",
+                "Only the Empty's rotation and scale are prescribed; the anchor may drift "
+                "(the paper's mode)",
+            ),
+        ),
+        default="POSITION",
+        update=_anchor_changed,
+    )
+    # world matrix of the Empty at bind time, row-major
+    bind_matrix: FloatVectorProperty(size=16, default=IDENTITY16, options={"HIDDEN"})
+
+
+class MaterialDeformSettings(bpy.types.PropertyGroup):
+    anchors: CollectionProperty(type=MaterialDeformAnchor)
+    active_anchor_index: IntProperty(name="Active Anchor", default=0, min=0)
+
+    stiffness_source: EnumProperty(
+        name="Paint Source",
+        items=(
+            ("VERTEX_GROUP", "Vertex Group", "Weight Paint: weight 0 = flexible, 1 = stiff"),
+            ("COLOR_ATTRIBUTE", "Color Attribute", "Vertex Paint: black = flexible, white = stiff"),
+        ),
+        default="VERTEX_GROUP",
+    )
+    stiffness_group: StringProperty(name="Vertex Group", default="Stiffness")
+    color_attribute: StringProperty(name="Color Attribute", default="Stiffness")
+    stiffness_span: FloatProperty(
+        name="Span (decades)",
+        description="Paint 0 maps to 10^-span, paint 1 to 1 (log scale)",
+        default=3.0,
+        min=0.5,
+        max=8.0,
+    )
+
+    bound: BoolProperty(name="Bound", default=False, options={"HIDDEN"})
+    live: BoolProperty(
+        name="Live", default=True, description="Update the deformation when anchor Empties move"
+    )
+    created_basis: BoolProperty(default=False, options={"HIDDEN"})
+    rebind_reason: StringProperty(options={"HIDDEN"})
+    fp_topology: StringProperty(options={"HIDDEN"})
+    fp_anchors: StringProperty(options={"HIDDEN"})
+    fp_stiffness: StringProperty(options={"HIDDEN"})
+
+    bake_start: IntProperty(name="Start", default=1)
+    bake_end: IntProperty(name="End", default=50)
+
+
+classes = (MaterialDeformAnchor, MaterialDeformSettings)
+
+
+def register():
+    for cls in classes:
+        bpy.utils.register_class(cls)
+    bpy.types.Object.material_deform = PointerProperty(type=MaterialDeformSettings)
+
+
+def unregister():
+    del bpy.types.Object.material_deform
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)

@@ -1,0 +1,242 @@
+"""End-to-end update time inside Blender: Material Deform vs Blender's Laplacian Deform modifier
+(anchors moved by Hook modifiers) on the same tube mesh with the same anchor rings.
+
+    MD_SYS_PATH=build/addon/legacy/material_deform/_vendor \\
+        .venv-bpy/bin/python bench/bench_blender.py [--sizes 10000 50000 200000] [--out FILE]
+    (or: blender -b --factory-startup --python bench/bench_blender.py -- [args])
+
+Timed per update (medians):
+  md_apply   read Empty matrices -> anchor transforms -> solve -> foreach_set shape key + tag
+             (exactly what the live handler does per update)
+  md_cycle   move the Empty, view_layer.update() (handler runs), view_layer.update() again
+             (mesh re-evaluated with the new shape key): what the user waits for
+  lap_cycle  move the Hook Empty, view_layer.update() (Hooks + Laplacian Deform evaluated)
+"""
+
+import argparse
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+for p in reversed(os.environ.get("MD_SYS_PATH", "").split(os.pathsep)):
+    if p:
+        sys.path.insert(0, p)
+sys.path.insert(0, str(ROOT / "addon"))
+
+import bpy  # noqa: E402
+import numpy as np  # noqa: E402
+
+
+def tube(name, rings, sides, length=4.0, radius=0.5):
+    i = np.arange(rings)[:, None]
+    j = np.arange(sides)[None, :]
+    a = 2 * np.pi * j / sides
+    z = np.broadcast_to(-length / 2 + length * i / (rings - 1), (rings, sides))
+    verts = np.stack(
+        [
+            np.broadcast_to(radius * np.cos(a), (rings, sides)),
+            np.broadcast_to(radius * np.sin(a), (rings, sides)),
+            z,
+        ],
+        axis=-1,
+    ).reshape(-1, 3)
+    r = np.arange(rings - 1)[:, None]
+    s = np.arange(sides)[None, :]
+    v0 = r * sides + s
+    v1 = r * sides + (s + 1) % sides
+    quads = np.stack([v0, v1, v1 + sides, v0 + sides], axis=-1).reshape(-1, 4)
+    me = bpy.data.meshes.new(name)
+    me.vertices.add(len(verts))
+    me.vertices.foreach_set("co", verts.ravel().astype(np.float32))
+    me.loops.add(quads.size)
+    me.loops.foreach_set("vertex_index", quads.ravel().astype(np.int32))
+    me.polygons.add(len(quads))
+    me.polygons.foreach_set("loop_start", np.arange(0, quads.size, 4, dtype=np.int32))
+    if hasattr(me.polygons[0], "loop_total") and bpy.app.version < (4, 0, 0):
+        me.polygons.foreach_set("loop_total", np.full(len(quads), 4, dtype=np.int32))
+    me.update(calc_edges=True)
+    me.validate()
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def activate(obj):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+
+
+def ring_polys(obj, sides, ring_rows):
+    """Polygon mask of the first/last `ring_rows` rows of quads."""
+    n = len(obj.data.polygons)
+    row = np.arange(n) // sides
+    rows = n // sides
+    return row < ring_rows, row >= rows - ring_rows
+
+
+def setup_md(obj, sides, ring_rows):
+    from material_deform.bridge import select_polygons_edit
+
+    bottom, top = ring_polys(obj, sides, ring_rows)
+    activate(obj)
+    for mask in (top, bottom):
+        bpy.ops.object.mode_set(mode="EDIT")
+        select_polygons_edit(obj, mask)
+        bpy.ops.mesh.material_deform_add_anchor()
+        bpy.ops.object.mode_set(mode="OBJECT")
+    t = time.perf_counter()
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    return obj.material_deform.anchors[0].empty, time.perf_counter() - t
+
+
+def setup_laplacian(obj, sides, ring_rows):
+    bottom, top = ring_polys(obj, sides, ring_rows)
+    me = obj.data
+    lv = np.empty(len(me.loops), np.int32)
+    me.loops.foreach_get("vertex_index", lv)
+    q = lv.reshape(-1, 4)
+    top_v = np.unique(q[top].ravel())
+    all_v = np.unique(np.concatenate([top_v, q[bottom].ravel()]))
+    vg = obj.vertex_groups.new(name="Anchors")
+    vg.add(all_v.tolist(), 1.0, "REPLACE")
+    empty = bpy.data.objects.new(obj.name + " hook", None)
+    bpy.context.scene.collection.objects.link(empty)
+    empty.location = (0, 0, 2.0)
+    bpy.context.view_layer.update()
+    hook = obj.modifiers.new("Hook", "HOOK")
+    hook.object = empty
+    hook.vertex_indices_set(top_v.tolist())
+    hook.matrix_inverse = empty.matrix_world.inverted()
+    lap = obj.modifiers.new("LaplacianDeform", "LAPLACIANDEFORM")
+    lap.vertex_group = "Anchors"
+    lap.iterations = 1
+    activate(obj)
+    t = time.perf_counter()
+    with bpy.context.temp_override(object=obj, active_object=obj):
+        bpy.ops.object.laplaciandeform_bind(modifier=lap.name)
+    bpy.context.view_layer.update()  # the bind happens on evaluation
+    return empty, time.perf_counter() - t
+
+
+def median_ms(fn, reps, budget_s):
+    times = []
+    start = time.perf_counter()
+    for i in range(reps):
+        t = time.perf_counter()
+        fn(i)
+        times.append(time.perf_counter() - t)
+        if time.perf_counter() - start > budget_s and len(times) >= 3:
+            break
+    return 1000 * statistics.median(times), len(times)
+
+
+def wiggle(empty, i):
+    empty.location.x = 0.3 * math.sin(0.7 * (i + 1))
+    empty.location.y = 0.2 * math.cos(0.9 * (i + 1))
+
+
+def bench_size(target_faces, reps, budget_s):
+    from material_deform import session
+
+    sides = max(16, int(round(math.sqrt(target_faces / 2 / 2.5))))
+    rings = max(3, int(round(target_faces / 2 / sides)) + 1)
+    ring_rows = max(1, (rings - 1) // 50)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+
+    obj = tube("MD", rings, sides)
+    n_tris = 2 * len(obj.data.polygons)
+    empty, md_bind = setup_md(obj, sides, ring_rows)
+    entry = session.entry_for(obj, scene)
+
+    def md_apply(i):
+        wiggle(empty, i)
+        session.apply(obj, scene, None, force=True)
+
+    def md_cycle(i):
+        wiggle(empty, i + 1000)
+        bpy.context.view_layer.update()
+        bpy.context.view_layer.update()
+
+    t = np.array([np.eye(4)] * entry.n_anchors)
+    t[0, :3, 3] = (0.1, 0.0, 0.0)
+    solve, _ = median_ms(lambda i: entry.deformer.deform(t), reps, budget_s)
+    apply_ms, n_apply = median_ms(md_apply, reps, budget_s)
+    cycle_ms, n_cycle = median_ms(md_cycle, reps, budget_s)
+    # sanity: the anchor followed (the benchmark must measure a working deformation)
+    kb = obj.data.shape_keys.key_blocks["Material Deform"]
+    co = np.empty(len(kb.data) * 3, np.float32)
+    kb.data.foreach_get("co", co)
+    assert np.all(np.isfinite(co))
+
+    lap_obj = tube("Laplacian", rings, sides)
+    hook_empty, lap_bind = setup_laplacian(lap_obj, sides, ring_rows)
+
+    def lap_cycle(i):
+        wiggle(hook_empty, i)
+        bpy.context.view_layer.update()
+
+    md_obj_hidden = obj.hide_viewport
+    obj.hide_viewport = True  # evaluate only the Laplacian object in its cycle
+    lap_ms, n_lap = median_ms(lap_cycle, reps, budget_s * 2)
+    obj.hide_viewport = md_obj_hidden
+    return {
+        "tris": n_tris,
+        "verts": len(obj.data.vertices),
+        "md_bind_s": md_bind,
+        "md_solve": solve,
+        "md_apply": apply_ms,
+        "md_cycle": cycle_ms,
+        "lap_bind_s": lap_bind,
+        "lap_cycle": lap_ms,
+        "n": (n_apply, n_cycle, n_lap),
+    }
+
+
+def main():
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--sizes", type=int, nargs="+", default=[10000, 50000, 200000])
+    ap.add_argument("--reps", type=int, default=30)
+    ap.add_argument("--budget", type=float, default=20.0, help="seconds per measurement")
+    ap.add_argument("--out", type=str, default="")
+    args = ap.parse_args(argv)
+
+    import addon_utils
+
+    addon_utils.enable("material_deform", default_set=True)
+    rows = [bench_size(s, args.reps, args.budget) for s in args.sizes]
+
+    lines = [
+        f"Blender {bpy.app.version_string}, Python {platform.python_version()}, "
+        f"{platform.machine()}, {os.cpu_count()} CPU(s)",
+        "",
+        "| triangles | vertices | MD bind (s) | MD solve (ms) | MD apply (ms) | MD full update "
+        "(ms) | Laplacian bind (s) | Laplacian update (ms) | Laplacian / MD (full update) |",
+        "|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['tris']} | {r['verts']} | {r['md_bind_s']:.2f} | {r['md_solve']:.2f} | "
+            f"{r['md_apply']:.2f} | {r['md_cycle']:.2f} | {r['lap_bind_s']:.2f} | "
+            f"{r['lap_cycle']:.1f} | {r['lap_cycle'] / r['md_cycle']:.1f}x |"
+        )
+    lines.append("")
+    lines.append(
+        "samples per median (apply, full, laplacian): "
+        + ", ".join(f"{r['tris']}: {r['n']}" for r in rows)
+    )
+    text = "\n".join(lines)
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text + "\n")
+
+
+main()

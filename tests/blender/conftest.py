@@ -1,0 +1,33 @@
+"""Runs both inside Blender (``blender -b --factory-startup --python tests/blender/run.py``) and
+with the PyPI ``bpy`` module (``python -m pytest tests/blender``)."""
+
+import os
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+for extra in reversed(os.environ.get("MD_TEST_SYS_PATH", "").split(os.pathsep)):
+    if extra and extra not in sys.path:
+        sys.path.insert(0, extra)
+if str(REPO / "addon") not in sys.path:
+    sys.path.insert(0, str(REPO / "addon"))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bpy  # noqa: E402
+import pytest  # noqa: E402
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _addon_enabled():
+    import addon_utils  # only importable once bpy has set up Blender's module path
+
+    mod = addon_utils.enable("material_deform", default_set=True)
+    assert mod is not None, "material_deform add-on failed to enable"
+    yield mod
+
+
+@pytest.fixture(autouse=True)
+def fresh_scene():
+    """Factory-startup empty scene per test; the add-on stays enabled."""
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    yield bpy.context.scene

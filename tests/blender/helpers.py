@@ -1,0 +1,144 @@
+"""Scene builders and measurements shared by the Blender tests (tests may use bpy freely)."""
+
+import math
+
+import bmesh
+import bpy
+import numpy as np
+
+
+def tube(name="Bar", rings=21, length=4.0, radius=0.5, sides=8, square=True):
+    """A bar along Z: quads around, one n-gon cap at each end (polygons 0 and 1)."""
+    verts, faces = [], []
+    for r in range(rings):
+        z = -length / 2 + length * r / (rings - 1)
+        for s in range(sides):
+            a = 2 * math.pi * s / sides + math.pi / sides
+            if square:
+                c, d = math.cos(a), math.sin(a)
+                m = max(abs(c), abs(d))
+                verts.append((radius * c / m, radius * d / m, z))
+            else:
+                verts.append((radius * math.cos(a), radius * math.sin(a), z))
+    faces.append(tuple(reversed(range(sides))))  # bottom cap
+    faces.append(tuple(range((rings - 1) * sides, rings * sides)))  # top cap
+    for r in range(rings - 1):
+        for s in range(sides):
+            a, b = r * sides + s, r * sides + (s + 1) % sides
+            faces.append((a, b, b + sides, a + sides))
+    return mesh_object(name, verts, faces)
+
+
+def mesh_object(name, verts, faces):
+    me = bpy.data.meshes.new(name)
+    me.from_pydata([tuple(v) for v in verts], [], [tuple(f) for f in faces])
+    me.update()
+    obj = bpy.data.objects.new(name, me)
+    bpy.context.scene.collection.objects.link(obj)
+    activate(obj)
+    return obj
+
+
+def activate(obj):
+    for o in bpy.context.view_layer.objects:
+        o.select_set(False)
+    bpy.context.view_layer.objects.active = obj
+    obj.select_set(True)
+
+
+def select_faces(obj, pred):
+    """Select exactly the polygons for which pred(polygon) is true; leaves Edit Mode on.
+    (bmesh, because writing edge selection through RNA segfaults Blender 5.0.1.)"""
+    activate(obj)
+    if obj.mode != "OBJECT":
+        bpy.ops.object.mode_set(mode="OBJECT")
+    mask = [bool(pred(p)) for p in obj.data.polygons]
+    bpy.ops.object.mode_set(mode="EDIT")
+    bm = bmesh.from_edit_mesh(obj.data)
+    for seq in (bm.verts, bm.edges, bm.faces):
+        for elem in seq:
+            elem.select = False
+    bm.faces.ensure_lookup_table()
+    for i, m in enumerate(mask):
+        if m:
+            bm.faces[i].select_set(True)
+    bmesh.update_edit_mesh(obj.data)
+
+
+def add_anchor(obj, pred, mode="POSITION"):
+    select_faces(obj, pred)
+    assert bpy.ops.mesh.material_deform_add_anchor(mode=mode) == {"FINISHED"}
+    bpy.ops.object.mode_set(mode="OBJECT")
+    return obj.material_deform.anchors[-1]
+
+
+def two_end_anchors(obj, half_length=2.0):
+    top = add_anchor(obj, lambda p: p.center.z > half_length - 1e-4)
+    bottom = add_anchor(obj, lambda p: p.center.z < -half_length + 1e-4)
+    return top, bottom
+
+
+def co(seq):
+    out = np.empty(len(seq) * 3, np.float32)
+    seq.foreach_get("co", out)
+    return out.reshape(-1, 3)
+
+
+def output(obj):
+    return co(obj.data.shape_keys.key_blocks["Material Deform"].data)
+
+
+def rest(obj):
+    keys = obj.data.shape_keys
+    return co(keys.reference_key.data if keys else obj.data.vertices)
+
+
+def evaluated(obj):
+    dg = bpy.context.evaluated_depsgraph_get()
+    ev = obj.evaluated_get(dg)
+    me = ev.to_mesh()
+    try:
+        return co(me.vertices)
+    finally:
+        ev.to_mesh_clear()
+
+
+def anchor_vertices(obj, anchor):
+    vg = obj.vertex_groups[anchor.vertex_group]
+    idx = []
+    for v in obj.data.vertices:
+        if any(g.group == vg.index for g in v.groups):
+            idx.append(v.index)
+    return np.array(idx)
+
+
+def triangles(obj):
+    me = obj.data
+    me.calc_loop_triangles()
+    t = np.empty(len(me.loop_triangles) * 3, np.int32)
+    me.loop_triangles.foreach_get("vertices", t)
+    p = np.empty(len(me.loop_triangles), np.int32)
+    me.loop_triangles.foreach_get("polygon_index", p)
+    return t.reshape(-1, 3), p
+
+
+def face_rotation_angles(rest_v, def_v, tris):
+    """Rotation angle (radians) of each triangle's best-fit deformation gradient: the polar
+    rotation of  [e1 e2 n]' [e1 e2 n]^-1  (Sumner-Popovic frame)."""
+
+    def frame(v):
+        e1 = v[tris[:, 1]] - v[tris[:, 0]]
+        e2 = v[tris[:, 2]] - v[tris[:, 0]]
+        n = np.cross(e1, e2)
+        n /= np.sqrt(np.linalg.norm(n, axis=1))[:, None]
+        return np.stack([e1, e2, n], axis=2)
+
+    a = frame(np.asarray(def_v, float)) @ np.linalg.inv(frame(np.asarray(rest_v, float)))
+    u, _s, vt = np.linalg.svd(a)
+    r = u @ vt
+    c = np.clip((np.trace(r, axis1=1, axis2=2) - 1) / 2, -1, 1)
+    return np.arccos(c)
+
+
+def update():
+    bpy.context.view_layer.update()

@@ -1,0 +1,204 @@
+"""Bad input: a clear operator error and the mesh left exactly as it was."""
+
+import bpy
+import numpy as np
+import pytest
+from helpers import add_anchor, mesh_object, output, rest, tube, two_end_anchors, update
+
+
+def snapshot(obj):
+    me = obj.data
+    keys = me.shape_keys
+    return (
+        rest(obj).tobytes(),
+        None if keys is None else [k.name for k in keys.key_blocks],
+        len(me.vertices),
+        len(me.polygons),
+        [a.name for a in me.attributes],
+    )
+
+
+def expect_error(op, match, **kw):
+    with pytest.raises(RuntimeError, match=match):
+        op(**kw)
+
+
+def test_no_anchors():
+    obj = tube()
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "No anchors")
+    assert snapshot(obj) == before and not obj.material_deform.bound
+
+
+def test_empty_vertex_group():
+    obj = tube()
+    anc = add_anchor(obj, lambda p: p.center.z > 1.999)
+    add_anchor(obj, lambda p: p.center.z < -1.999)
+    obj.vertex_groups[anc.vertex_group].remove(list(range(len(obj.data.vertices))))
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "contains no whole face")
+    assert snapshot(obj) == before
+
+
+def test_missing_vertex_group_and_missing_stiffness_group():
+    obj = tube()
+    anc = add_anchor(obj, lambda p: p.center.z > 1.999)
+    obj.vertex_groups.remove(obj.vertex_groups[anc.vertex_group])
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "not found")
+    expect_error(bpy.ops.mesh.material_deform_stiffness_from_paint, "No vertex group 'Stiffness'")
+    assert snapshot(obj) == before
+
+
+def test_add_anchor_without_selection():
+    obj = tube()
+    obj.data.polygons.foreach_set("select", [False] * len(obj.data.polygons))
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="DESELECT")
+    expect_error(bpy.ops.mesh.material_deform_add_anchor, "Select the anchor faces")
+    bpy.ops.object.mode_set(mode="OBJECT")
+    assert len(obj.vertex_groups) == 0 and len(obj.material_deform.anchors) == 0
+
+
+def test_deleted_empty_before_and_after_bind():
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    top.empty.location.x += 0.5
+    update()
+    result = output(obj).copy()
+    bpy.data.objects.remove(top.empty)
+    update()
+    np.testing.assert_array_equal(output(obj), result)  # no garbage written
+    expect_error(bpy.ops.mesh.material_deform_update, "Empty")
+    np.testing.assert_array_equal(output(obj), result)
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "has no Empty")
+    assert snapshot(obj) == before
+
+
+def test_empty_unlinked_from_scene():
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    for c in list(top.empty.users_collection):
+        c.objects.unlink(top.empty)
+    expect_error(bpy.ops.mesh.material_deform_bind, "not in the scene")
+
+
+def test_mesh_edited_after_bind_needs_rebind():
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    bpy.ops.mesh.material_deform_bind()
+    top.empty.location.x += 0.5
+    update()
+    result = output(obj).copy()
+    # topology edit in Edit Mode
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    bpy.ops.mesh.subdivide()
+    bpy.ops.object.mode_set(mode="OBJECT")
+    top.empty.location.x += 0.5
+    update()
+    from material_deform import session
+
+    assert "Changed since bind" in session.stale_reason(obj)
+    n_old = len(result)
+    np.testing.assert_array_equal(output(obj)[:n_old], result)  # old result left alone
+    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: mesh")
+    # rebinding fixes it
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert session.stale_reason(obj) == ""
+
+
+def test_rest_shape_moved_in_edit_mode_needs_rebind():
+    obj = tube()
+    two_end_anchors(obj)
+    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.mode_set(mode="EDIT")
+    bpy.ops.mesh.select_all(action="SELECT")
+    bpy.ops.transform.translate(value=(0.1, 0, 0))
+    bpy.ops.object.mode_set(mode="OBJECT")
+    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: mesh")
+
+
+def test_stiffness_repainted_after_bind_needs_rebind():
+    obj = tube()
+    two_end_anchors(obj)
+    bpy.ops.mesh.material_deform_bind()
+    vg = obj.vertex_groups.new(name="Stiffness")
+    vg.add(list(range(8)), 1.0, "REPLACE")
+    bpy.ops.mesh.material_deform_stiffness_from_paint()
+    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: stiffness")
+
+
+def test_overlapping_anchors():
+    obj = tube()
+    add_anchor(obj, lambda p: p.center.z > 1.999)
+    add_anchor(obj, lambda p: p.center.z > 1.7)
+    expect_error(bpy.ops.mesh.material_deform_bind, "share faces")
+
+
+def test_non_manifold_mesh():
+    verts = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1)]
+    obj = mesh_object("Fan", verts, [(0, 1, 2), (1, 0, 3), (0, 1, 4)])
+    add_anchor(obj, lambda p: p.index == 0)
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "non-manifold")
+    assert snapshot(obj) == before
+
+
+def test_degenerate_face():
+    verts = [(0, 0, 0), (1, 0, 0), (0, 1, 0), (2, 0, 0), (1, 1, 0)]
+    obj = mesh_object("Degenerate", verts, [(0, 1, 2), (1, 4, 2), (0, 3, 1)])  # last: collinear
+    add_anchor(obj, lambda p: p.index == 0)
+    before = snapshot(obj)
+    expect_error(bpy.ops.mesh.material_deform_bind, "degenerate")
+    assert snapshot(obj) == before
+
+
+def test_part_without_anchor():
+    obj = tube()
+    other = tube(name="Other")
+    other.location.x = 3
+    bpy.ops.object.select_all(action="SELECT")
+    bpy.context.view_layer.objects.active = obj
+    bpy.ops.object.join()
+    add_anchor(obj, lambda p: p.center.z > 1.999 and p.center.x < 1.0)
+    add_anchor(obj, lambda p: p.center.z < -1.999 and p.center.x < 1.0)
+    expect_error(bpy.ops.mesh.material_deform_bind, "no anchor")
+
+
+def test_not_a_mesh_has_no_operator():
+    bpy.ops.object.empty_add()
+    assert not bpy.ops.mesh.material_deform_bind.poll()
+
+
+def test_loose_vertices_are_ignored():
+    obj = tube()
+    me = obj.data
+    me.vertices.add(1)
+    me.vertices[-1].co = (5, 5, 5)
+    me.update()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    top.empty.location.x += 1
+    update()
+    np.testing.assert_array_equal(output(obj)[-1], [5, 5, 5])
+    assert np.abs(output(obj)[:-1, 0] - rest(obj)[:-1, 0]).max() > 0.9
+
+
+def test_changing_anchor_mode_or_empty_after_bind_needs_rebind():
+    from material_deform import session
+
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    top.mode = "ROTATION"
+    assert "Anchors changed" in session.stale_reason(obj)
+    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert session.stale_reason(obj) == ""
+    other = bpy.data.objects.new("E2", None)
+    bpy.context.scene.collection.objects.link(other)
+    top.empty = other
+    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
