@@ -265,10 +265,10 @@ def main() -> None:
     print(fmt_row("learned isotropic (paper)", b.run(learned())))
     print(fmt_row("learned isotropic (smoothing 30, eps 0.001)", b.run(learned(**TUNED))))
     if supports_anisotropic(b):
-        print(fmt_row("learned anisotropic (paper map)", b.run(learned(True))))
-        print(
-            fmt_row("learned anisotropic (smoothing 30, eps 0.001)", b.run(learned(True, **TUNED)))
-        )
+        for frame in ("rest", "world"):
+            for label, kw in (("paper map", {}), ("smoothing 30, eps 0.001", TUNED)):
+                name = f"learned anisotropic, {frame} axes ({label})"
+                print(fmt_row(name, b.run(learned(True, frame=frame, **kw))))
     else:
         print("| learned anisotropic | pending: MaterialDeformer does not accept (E,3) bend yet |")
     if not args.no_blender:
