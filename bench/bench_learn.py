@@ -31,6 +31,7 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--copies", type=int, default=3)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="core thread counts")
     args = ap.parse_args()
 
     v0, f0 = md.read_obj(args.data / "cat-reference.obj")
@@ -47,18 +48,20 @@ def main() -> None:
         f"cpus={os.cpu_count()}"
     )
 
-    for aniso in (False, True):
-        md.learn_stiffness(v, f, poses, anisotropic=aniso)  # warm-up
-        times = []
-        for _ in range(args.repeat):
-            t = time.perf_counter()
-            md.learn_stiffness(v, f, poses, anisotropic=aniso)
-            times.append(time.perf_counter() - t)
-        label = "anisotropic" if aniso else "isotropic"
-        print(
-            f"learn_stiffness {label:12s} median {np.median(times):.3f} s  "
-            f"min {min(times):.3f} s  max {max(times):.3f} s  ({args.repeat} runs)"
-        )
+    for threads in args.threads:
+        md.set_num_threads(threads)
+        for aniso in (False, True):
+            md.learn_stiffness(v, f, poses, anisotropic=aniso)  # warm-up
+            times = []
+            for _ in range(args.repeat):
+                t = time.perf_counter()
+                md.learn_stiffness(v, f, poses, anisotropic=aniso)
+                times.append(time.perf_counter() - t)
+            label = "anisotropic" if aniso else "isotropic"
+            print(
+                f"threads {threads}  learn_stiffness {label:12s} median {np.median(times):.3f} s"
+                f"  min {min(times):.3f} s  max {max(times):.3f} s  ({args.repeat} runs)"
+            )
 
 
 if __name__ == "__main__":
