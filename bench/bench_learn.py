@@ -4,7 +4,7 @@ The mesh is three side-by-side copies of the cat (43,230 faces); the 10 poses ar
 cat poses plus a rigidly moved copy of pose 1, applied to all three copies. Reports the median
 wall time of repeated ``learn_stiffness`` calls (input validation included).
 
-    python bench/bench_learn.py [--data /work/shared/data/cat-poses] [--repeat 9]
+    python bench/bench_learn.py [--data ../shared/data/cat-poses] [--repeat 9]
 """
 
 from __future__ import annotations
@@ -28,7 +28,11 @@ def tile(v: np.ndarray, f: np.ndarray, copies: int, step: float) -> tuple[np.nda
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+    )
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--copies", type=int, default=3)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="core thread counts")

@@ -241,7 +241,11 @@ def fmt_row(name: str, errs: list[float], note: str = "") -> str:
 def main() -> None:
     global BENCH
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+    )
     ap.add_argument("--no-blender", action="store_true")
     ap.add_argument("--explore", action="store_true", help="also run the learning variants")
     ap.add_argument("--plot", type=Path, help="write a PNG of the anchor regions (matplotlib)")
