@@ -4,7 +4,7 @@ The mesh is three side-by-side copies of the cat (43,230 faces); the 10 poses ar
 cat poses plus a rigidly moved copy of pose 1, applied to all three copies. Reports the median
 wall time of repeated ``learn_stiffness`` calls (input validation included).
 
-    python bench/bench_learn.py [--data /work/shared/data/cat-poses] [--repeat 9]
+    python bench/bench_learn.py [--data ../shared/data/cat-poses] [--repeat 9]
 """
 
 from __future__ import annotations
@@ -28,9 +28,14 @@ def tile(v: np.ndarray, f: np.ndarray, copies: int, step: float) -> tuple[np.nda
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+    )
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--copies", type=int, default=3)
+    ap.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="core thread counts")
     args = ap.parse_args()
 
     v0, f0 = md.read_obj(args.data / "cat-reference.obj")
@@ -47,18 +52,20 @@ def main() -> None:
         f"cpus={os.cpu_count()}"
     )
 
-    for aniso in (False, True):
-        md.learn_stiffness(v, f, poses, anisotropic=aniso)  # warm-up
-        times = []
-        for _ in range(args.repeat):
-            t = time.perf_counter()
-            md.learn_stiffness(v, f, poses, anisotropic=aniso)
-            times.append(time.perf_counter() - t)
-        label = "anisotropic" if aniso else "isotropic"
-        print(
-            f"learn_stiffness {label:12s} median {np.median(times):.3f} s  "
-            f"min {min(times):.3f} s  max {max(times):.3f} s  ({args.repeat} runs)"
-        )
+    for threads in args.threads:
+        md.set_num_threads(threads)
+        for aniso in (False, True):
+            md.learn_stiffness(v, f, poses, anisotropic=aniso)  # warm-up
+            times = []
+            for _ in range(args.repeat):
+                t = time.perf_counter()
+                md.learn_stiffness(v, f, poses, anisotropic=aniso)
+                times.append(time.perf_counter() - t)
+            label = "anisotropic" if aniso else "isotropic"
+            print(
+                f"threads {threads}  learn_stiffness {label:12s} median {np.median(times):.3f} s"
+                f"  min {min(times):.3f} s  max {max(times):.3f} s  ({args.repeat} runs)"
+            )
 
 
 if __name__ == "__main__":

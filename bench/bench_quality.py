@@ -212,6 +212,27 @@ def learned(anisotropic: bool = False, **kw) -> Stiffness:
 BENCH: Bench  # set in main(); the variant closures read it
 
 
+def plot_anchors(b: Bench, path: Path) -> None:
+    """Side and top views of the reference cat with the anchor regions highlighted."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 5))
+    for ax, (i, j, title) in zip(axes, [(2, 1, "side (z, y)"), (2, 0, "top (z, x)")], strict=True):
+        ax.scatter(b.rest[:, i], b.rest[:, j], s=0.2, c="0.7")
+        for (name, v), r in zip(b.points.items(), b.region_verts, strict=True):
+            ax.scatter(b.rest[r, i], b.rest[r, j], s=1.5, label=name)
+            ax.annotate(name, (b.rest[v, i], b.rest[v, j]), fontsize=8)
+        ax.set_aspect("equal")
+        ax.set_title(title)
+    axes[0].legend(markerscale=6, fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    print(f"  wrote {path}")
+
+
 def fmt_row(name: str, errs: list[float], note: str = "") -> str:
     cells = " | ".join(f"{e:.4f}" for e in errs)
     return f"| {name} | {np.mean(errs):.4f} | {cells} |{(' ' + note) if note else ''}"
@@ -220,9 +241,14 @@ def fmt_row(name: str, errs: list[float], note: str = "") -> str:
 def main() -> None:
     global BENCH
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--data", type=Path, default=Path("/work/shared/data/cat-poses"))
+    ap.add_argument(
+        "--data",
+        type=Path,
+        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+    )
     ap.add_argument("--no-blender", action="store_true")
     ap.add_argument("--explore", action="store_true", help="also run the learning variants")
+    ap.add_argument("--plot", type=Path, help="write a PNG of the anchor regions (matplotlib)")
     args = ap.parse_args()
 
     b = BENCH = Bench(args.data)
@@ -233,15 +259,20 @@ def main() -> None:
             f"{len(r)} vertices, {len(fs)} faces"
         )
     print(f"  {len(b.pinned)} pinned vertices")
+    if args.plot:
+        plot_anchors(b, args.plot)
 
     header = "| method | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |"
     print(header)
     print("|" + "---|" * 11)
     print(fmt_row("uniform stiffness", b.run(uniform)))
     print(fmt_row("learned isotropic (paper)", b.run(learned())))
-    print(fmt_row("learned isotropic (tuned)", b.run(learned(**TUNED))))
+    print(fmt_row("learned isotropic (smoothing 30, eps 0.001)", b.run(learned(**TUNED))))
     if supports_anisotropic(b):
-        print(fmt_row("learned anisotropic (tuned)", b.run(learned(True, **TUNED))))
+        for frame in ("rest", "world"):
+            for label, kw in (("paper map", {}), ("smoothing 30, eps 0.001", TUNED)):
+                name = f"learned anisotropic, {frame} axes ({label})"
+                print(fmt_row(name, b.run(learned(True, frame=frame, **kw))))
     else:
         print("| learned anisotropic | pending: MaterialDeformer does not accept (E,3) bend yet |")
     if not args.no_blender:
@@ -255,13 +286,119 @@ def main() -> None:
         explore(b)
 
 
-# Defaults of learn_stiffness are the paper's recipe; this is the best variant found by
-# explore() (see docs/quality.md).
-TUNED: dict = {}
+# Defaults of learn_stiffness are the paper's recipe. TUNED is the best variant explore() found
+# on these same 9 folds (so its number is optimistic; explore() also reports an honest nested
+# selection). See docs/quality.md.
+TUNED: dict = dict(smoothing=30, eps=0.001)
 
 
 def explore(b: Bench) -> None:
-    print("\nexploration (mean over the 9 held-out poses):")
+    """Learning variants, each strictly held-out (the reconstructed pose is never used).
+
+    Per-pose distortions are computed once with md.learn_distortions on single poses; their max
+    over the 8 training poses is exactly what learn_distortions returns for the set.
+    """
+    pairs = md.dual_edges(b.faces)
+    per_pose = [md.learn_distortions(b.rest, b.faces, [p]) for p in b.poses]
+    pb = np.stack([x[0] for x in per_pose])  # (9,E)
+    ps = np.stack([x[1] for x in per_pose])  # (9,m)
+    n_poses = len(b.poses)
+    aggregates = {
+        "max": lambda x: x.max(0),
+        "mean": lambda x: x.mean(0),
+        "rms": lambda x: np.sqrt((x**2).mean(0)),
+        "2nd largest": lambda x: np.sort(x, 0)[-2],
+    }
+
+    def distortions(excluded, agg="max", smoothing=0):
+        keep = [s for s in range(n_poses) if s not in excluded]
+        bd, sd = aggregates[agg](pb[keep]), aggregates[agg](ps[keep])
+        return md.smooth_distortions(b.faces, bd, sd, smoothing) if smoothing else (bd, sd)
+
+    def inverse(d, delta, clamp=1.0):
+        top = np.percentile(d, 100 - clamp)
+        return delta / (np.minimum(d, top) / top + delta)
+
+    def mapped(agg="max", smoothing=0, bend=True, shear=True, **kw):
+        """Variant: (held-out pose, excluded set) -> (shear, bend) with the library map."""
+
+        def f(excluded):
+            bd, sd = distortions(excluded, agg, smoothing)
+            sb = md.stiffness_from_distortion(bd, **kw) if bend else np.ones_like(bd)
+            ss = md.stiffness_from_distortion(sd, **kw) if shear else np.ones_like(sd)
+            return ss, sb
+
+        return f
+
+    def held_out(f):
+        return [rms_error(b.reconstruct(h, *f({h})), b.poses[h], b.diag) for h in range(n_poses)]
+
+    # Diagnostic only (hand-painted, not learned): everything soft in bending in the torso.
+    c = b.rest[b.faces].mean(1)
+    lo, hi = b.rest.min(0), b.rest.max(0)
+    rel = (c - lo) / (hi - lo)
+    torso = (rel[:, 1] > 0.44) & (rel[:, 2] > 0.32) & (rel[:, 2] < 0.84)
+    torso_bend = np.where(torso[pairs[:, 0]] & torso[pairs[:, 1]], 0.01, 1.0)
+
+    variants = {
+        "paper: linear, eps 0.01, clamp 1%": mapped(),
+        "bend from learned shear (psi_i+psi_j)/2": lambda ex: (mapped()(ex)[0], None),
+        "bend learned, shear uniform": mapped(shear=False),
+        "shear learned, bend uniform": mapped(bend=False),
+    }
+    for eps in (0.001, 0.05, 0.2):
+        variants[f"eps {eps}"] = mapped(eps=eps)
+    for clamp in (0.0, 2.0, 5.0, 10.0, 20.0):
+        variants[f"clamp {clamp:g}%"] = mapped(clamp_percent=clamp)
+    for a in (3.0, 10.0, 30.0):
+        variants[f"exponential falloff, sharpness {a:g}"] = mapped(sharpness=a)
+    for delta in (0.01, 0.03, 0.1):
+        variants[f"inverse map delta/(u+delta), delta {delta:g}"] = lambda ex, delta=delta: tuple(
+            inverse(d, delta) for d in distortions(ex)[::-1]
+        )
+    for agg in ("mean", "rms", "2nd largest"):
+        variants[f"aggregate {agg} over poses, clamp 5%"] = mapped(agg, clamp_percent=5.0)
+    for k in (3, 10, 30, 100, 300):
+        variants[f"smoothing {k}, clamp 1%"] = mapped(smoothing=k)
+        variants[f"smoothing {k}, clamp 5%"] = mapped(smoothing=k, clamp_percent=5.0)
+    variants["smoothing 30, clamp 1%, eps 0.001"] = mapped(smoothing=30, eps=0.001)
+    variants["diagnostic, NOT learned: bend 0.01 in a hand-picked torso box"] = lambda ex: (
+        None,
+        torso_bend,
+    )
+
+    print("\nexploration (held-out error per pose, mean over the 9 poses):")
+    print("| variant | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |")
+    print("|" + "---|" * 11)
+    for name, f in variants.items():
+        print(fmt_row(name, held_out(f)), flush=True)
+
+    # Honest model selection: for each held-out pose h, pick the candidate with the lowest
+    # leave-one-out error on the 8 training poses (stiffness learned from the other 7), then
+    # learn from all 8 with it and reconstruct h. inner[(h, s)]: error on s learned without h, s.
+    candidates = {
+        f"smoothing {k}, clamp {c:g}%": mapped(smoothing=k, clamp_percent=c)
+        for k in (0, 10, 30, 100)
+        for c in (1.0, 5.0)
+    }
+    inner = {
+        name: {
+            (h, s): rms_error(b.reconstruct(s, *f({h, s})), b.poses[s], b.diag)
+            for h in range(n_poses)
+            for s in range(n_poses)
+            if s != h
+        }
+        for name, f in candidates.items()
+    }
+    errs, picks = [], []
+    for h in range(n_poses):
+        train = [s for s in range(n_poses) if s != h]
+        score = {name: np.mean([tab[(h, s)] for s in train]) for name, tab in inner.items()}
+        best = min(score, key=score.get)
+        picks.append(best)
+        errs.append(rms_error(b.reconstruct(h, *candidates[best]({h})), b.poses[h], b.diag))
+    print(fmt_row("nested leave-one-out selection of smoothing x clamp", errs))
+    print("  picked per pose: " + "; ".join(f"{k + 1}: {p}" for k, p in enumerate(picks)))
 
 
 if __name__ == "__main__":

@@ -7,7 +7,8 @@ import pytest
 
 import matdeform as md
 
-CAT = Path("/work/shared/data/cat-poses")
+# shared/ sits beside the repository clone (as in CI).
+CAT = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cat-poses"
 
 
 def grid(nx, ny):
