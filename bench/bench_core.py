@@ -121,7 +121,10 @@ def main():
     ap.add_argument("--sizes", type=int, nargs="*", default=[10_000, 50_000, 200_000])
     ap.add_argument("--precompute-repeats", type=int, default=3)
     ap.add_argument("--region", action="store_true", help="also run the region-of-interest rows")
+    ap.add_argument("--threads", type=int, default=None, help="md.set_num_threads(N) first")
     args = ap.parse_args()
+    if args.threads:
+        md.set_num_threads(args.threads)
 
     rows = []
     for size in args.sizes:
@@ -157,7 +160,7 @@ def main():
 
     print(
         f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
-        f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}"
+        f"{md.num_threads()} solver thread(s), load average {os.getloadavg()[0]:.2f}"
     )
     print("| mesh | faces | anchors | transforms | precompute (s) | deform() (ms) | target |")
     print("|---|---:|---:|---|---:|---:|---|")

@@ -94,6 +94,10 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
     d.usable[i] = 1;
   }
 
+  if (std::find(d.usable.begin(), d.usable.end(), 1) == d.usable.end()) {
+    throw std::invalid_argument("faces: every face is degenerate (zero area); nothing to solve");
+  }
+
   // Components over usable faces; loose vertices (no usable face) keep their rest position.
   std::vector<int> parent(d.n);
   std::iota(parent.begin(), parent.end(), 0);

@@ -11,7 +11,7 @@ from .learn import (
     smooth_distortions,
     stiffness_from_distortion,
 )
-from .mesh import boundary_and_nonmanifold_edges, dual_edges, faces_inside
+from .mesh import boundary_and_nonmanifold_edges, dual_edges, face_components, faces_inside
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
@@ -28,6 +28,7 @@ __all__ = [
     "boundary_and_nonmanifold_edges",
     "deformation_gradients",
     "dual_edges",
+    "face_components",
     "faces_inside",
     "harmonic_weights",
     "num_threads",

@@ -47,3 +47,17 @@ def faces_inside(faces, vertex_ids) -> np.ndarray:
     ids = ids[(ids >= 0) & (ids < inside.size)]
     inside[ids] = True
     return np.flatnonzero(inside[f].all(axis=1)).astype(np.int64)
+
+
+def face_components(faces) -> tuple[np.ndarray, int]:
+    """Connected components of the faces (m,3) through shared edges.
+
+    Returns (labels (m,) int64 in [0, count), count). Each component is deformed on its own; a
+    component without an anchor keeps its rest shape.
+    """
+    f = as_int_array(faces, "faces", 2)
+    if f.shape[1] != 3:
+        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    pairs, _ = _core.dual_edges(f)
+    labels, count = _core.face_components(f.shape[0], pairs)
+    return labels.astype(np.int64), int(count)

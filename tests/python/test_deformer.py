@@ -209,3 +209,18 @@ def test_per_vertex_bend_is_averaged_over_shared_edges(small_tube):
     np.testing.assert_allclose(d1.weights, d2.weights, atol=1e-14)
     pairs, shared = md.dual_edges(f, return_shared=True)
     np.testing.assert_allclose(md.bend_from_vertex(f, s), s[shared].mean(axis=1))
+
+
+def test_all_degenerate_mesh_is_rejected():
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]])
+    f = np.array([[0, 1, 2], [1, 2, 3]])
+    with pytest.raises(ValueError, match="every face is degenerate"):
+        md.MaterialDeformer(v, f, [[0]])
+
+
+def test_face_components_of_two_tubes(small_tube):
+    v, f, lo, hi = small_tube
+    f2 = np.vstack([f, f + len(v)])
+    labels, count = md.face_components(f2)
+    assert count == 2
+    assert (labels[: len(f)] == 0).all() and (labels[len(f) :] == 1).all()
