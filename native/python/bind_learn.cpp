@@ -46,6 +46,14 @@ void bind_learn(py::module_& m) {
       },
       py::arg("bend"), py::arg("shear"), py::arg("pairs"), py::arg("passes"));
   m.def(
+      "rotation_spread",
+      [](const md::Vertices& rest, const md::Faces& faces, const md::IndexPairs& pairs,
+         const std::vector<md::Vertices>& poses, int passes) {
+        py::gil_scoped_release release;
+        return md::rotation_spread(rest, faces, pairs, poses, passes);
+      },
+      py::arg("rest"), py::arg("faces"), py::arg("pairs"), py::arg("poses"), py::arg("passes"));
+  m.def(
       "stiffness_from_distortion",
       [](const md::RowMatrix& d, double eps, double clamp_percent, double sharpness) {
         md::StiffnessMap map;

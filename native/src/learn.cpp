@@ -202,6 +202,65 @@ Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexP
   return out;
 }
 
+RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
+                          const std::vector<Vertices>& poses, int passes) {
+  if (passes < 0) throw std::invalid_argument("passes must be >= 0");
+  validate_inputs(rest, faces, pairs, poses);
+  const Eigen::Index m = faces.rows(), num_edges = pairs.rows();
+  const auto l = static_cast<Eigen::Index>(poses.size());
+  RowMatrix out = RowMatrix::Zero(m, l);
+  if (passes == 0) return out;
+  Matrix3Array rest_inv(static_cast<size_t>(m));
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const Eigen::Matrix3d V =
+        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
+    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
+    if (!lu.isInvertible()) {
+      throw std::invalid_argument("rest face " + std::to_string(i) + " is degenerate (zero area)");
+    }
+    rest_inv[static_cast<size_t>(i)] = lu.inverse();
+  }
+  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
+  for (Eigen::Index e = 0; e < num_edges; ++e) {
+    degree(pairs(e, 0)) += 1.0;
+    degree(pairs(e, 1)) += 1.0;
+  }
+#pragma omp parallel for schedule(dynamic)
+  for (Eigen::Index s = 0; s < l; ++s) {
+    const Vertices& pose = poses[static_cast<size_t>(s)];
+    // Columns 0..8: weight * Q (row-major), column 9: weight (1, or 0 for a collapsed face).
+    RowMatrix x = RowMatrix::Zero(m, 10);
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const Eigen::Matrix3d T =
+          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
+          rest_inv[static_cast<size_t>(i)];
+      if (!(T.determinant() > 0.0)) continue;
+      Eigen::Matrix3d S, R;
+      polar_decompose(T, &S, &R);
+      for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) x(i, 3 * a + b) = R(a, b);
+      }
+      x(i, 9) = 1.0;
+    }
+    RowMatrix next(m, 10);
+    for (int p = 0; p < passes; ++p) {
+      next = x;
+      for (Eigen::Index e = 0; e < num_edges; ++e) {
+        next.row(pairs(e, 0)) += x.row(pairs(e, 1));
+        next.row(pairs(e, 1)) += x.row(pairs(e, 0));
+      }
+      for (Eigen::Index i = 0; i < m; ++i) next.row(i) /= 1.0 + degree(i);
+      x.swap(next);
+    }
+    for (Eigen::Index i = 0; i < m; ++i) {
+      const double w = x(i, 9);
+      // Weighted mean of unit-norm-squared-3 matrices: 3 - |mean|^2 is their variance, >= 0.
+      if (w > 0.0) out(i, s) = std::max(0.0, 3.0 - x.row(i).head(9).squaredNorm() / (w * w));
+    }
+  }
+  return out;
+}
+
 LearnedStiffness learn_stiffness(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
                                  const std::vector<Vertices>& poses, bool anisotropic,
                                  const StiffnessMap& map, AxisFrame frame, int smoothing_passes) {

@@ -8,6 +8,7 @@ from .frames import deformation_gradients
 from .learn import (
     learn_distortions,
     learn_stiffness,
+    rotation_spread,
     smooth_distortions,
     stiffness_from_distortion,
 )
@@ -36,6 +37,7 @@ __all__ = [
     "learn_stiffness",
     "polar_decompose",
     "read_obj",
+    "rotation_spread",
     "set_num_threads",
     "shear_from_vertex",
     "smooth_distortions",

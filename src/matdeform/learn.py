@@ -9,6 +9,11 @@ polar decomposition into T_si = S_si Q_si (S symmetric stretch, Q rotation). The
 
 Distortions are dimensionless and invariant to rigid motions of each pose. They are mapped to
 stiffness in [eps, 1] by :func:`stiffness_from_distortion` (large distortion -> flexible -> eps).
+
+Beyond the paper, :func:`rotation_spread` measures bending at the scale of a region instead of a
+dual edge (``learn_stiffness(..., region=passes)``): how far the face rotations of a neighbourhood
+spread around their mean. A body that bends gently but as a whole (a torso) then reads as
+flexible, while rigid segments (bones) stay stiff however much they move.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from .mesh import dual_edges
 __all__ = [
     "learn_distortions",
     "learn_stiffness",
+    "rotation_spread",
     "smooth_distortions",
     "stiffness_from_distortion",
 ]
@@ -107,6 +113,33 @@ def smooth_distortions(faces, bend, shear, passes: int) -> tuple[np.ndarray, np.
     return np.asarray(sb).reshape(b.shape), np.asarray(ss)
 
 
+def rotation_spread(vertices, faces, poses, passes: int) -> np.ndarray:
+    """Per-face spread of the rotations of a neighbourhood around their mean, per pose.
+
+    For pose s with per-face polar rotations Q_s (T_s = S_s Q_s, as in :func:`learn_distortions`),
+    ``spread[i, s] = 3 - |mean_{j~i} Q_sj|_F^2 = mean_{j~i} |Q_sj - mean Q_s|_F^2``, where the mean
+    over the neighbourhood j ~ i is ``passes`` passes of the face-graph averaging of
+    :func:`smooth_distortions` (each pass: mean of a face and its dual-edge neighbours). A rigidly
+    moving part has spread 0; the more a region bends as a whole, the larger (at most 3 for
+    opposite rotations at 180 degrees). Faces collapsed in a pose get weight 0 in its averages.
+
+    Args:
+        vertices: (n,3) reference positions; faces: (m,3) int; poses: (l,n,3) or l x (n,3).
+        passes: >= 0, the neighbourhood size (radius grows like sqrt(passes) faces); 0 gives
+            zeros.
+
+    Returns:
+        (m,l) dimensionless, in [0, 3]; invariant to a rigid motion of each pose.
+    """
+    v = as_vertices(vertices)
+    f = as_faces(faces, v.shape[0])
+    p = _poses(poses, v.shape[0])
+    if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
+        raise ValueError(f"passes: expected an integer >= 0, got {passes!r}")
+    pairs = np.ascontiguousarray(dual_edges(f), dtype=np.int32)
+    return np.asarray(_core.rotation_spread(v, f, pairs, p, int(passes)))
+
+
 def stiffness_from_distortion(
     distortion, *, eps: float = 0.01, clamp_percent: float = 1.0, sharpness: float = 0.0
 ) -> np.ndarray:
@@ -157,6 +190,7 @@ def learn_stiffness(
     sharpness: float = 0.0,
     frame: str = "rest",
     smoothing: int = 0,
+    region: int = 0,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Learn bending and shearing stiffness from example poses (paper Sec. 6).
 
@@ -165,6 +199,11 @@ def learn_stiffness(
         anisotropic, frame: see :func:`learn_distortions`.
         smoothing: passes of :func:`smooth_distortions` applied to the distortions before
             mapping (0 = the paper's per-edge values).
+        region: 0 (default) learns bending from the paper's per-edge distortion. > 0 learns it
+            from the region-level :func:`rotation_spread` with ``region`` passes instead: the
+            bending distortion of dual edge (i, j) is the mean over i and j of
+            max over poses of the spread (``smoothing`` then only applies to shear). Isotropic
+            only.
         eps, clamp_percent, sharpness: see :func:`stiffness_from_distortion`; the same map is
             applied to bend and shear, each normalised by its own maximum.
 
@@ -175,10 +214,18 @@ def learn_stiffness(
     """
     if isinstance(smoothing, bool) or not isinstance(smoothing, (int, np.integer)) or smoothing < 0:
         raise ValueError(f"smoothing: expected an integer >= 0, got {smoothing!r}")
+    if isinstance(region, bool) or not isinstance(region, (int, np.integer)) or region < 0:
+        raise ValueError(f"region: expected an integer >= 0, got {region!r}")
+    if region and anisotropic:
+        raise ValueError("region > 0 learns isotropic bending only (anisotropic=False)")
     bend_d, shear_d = learn_distortions(
         vertices, faces, poses, anisotropic=anisotropic, frame=frame
     )
     if smoothing:
         bend_d, shear_d = smooth_distortions(faces, bend_d, shear_d, smoothing)
+    if region:
+        face_d = rotation_spread(vertices, faces, poses, region).max(axis=1)
+        pairs = dual_edges(as_int_array(faces, "faces", 2))
+        bend_d = 0.5 * (face_d[pairs[:, 0]] + face_d[pairs[:, 1]])
     kw = dict(eps=eps, clamp_percent=clamp_percent, sharpness=sharpness)
     return stiffness_from_distortion(bend_d, **kw), stiffness_from_distortion(shear_d, **kw)

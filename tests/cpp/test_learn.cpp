@@ -281,3 +281,44 @@ TEST(LearnInput, BadPosesThrow) {
   bad(0, 1) = static_cast<int>(F.rows());
   EXPECT_THROW(md::learn_distortions(V, F, bad, {V}, false), std::invalid_argument);
 }
+
+TEST(RotationSpread, ClosedFormOnTwoFacesLocalityAndRigidInvariance) {
+  // A quad folded along x = 1 by theta: after one pass both faces see the mean of the two
+  // rotations, so spread = 3 - |Q1 + Q2|^2 / 4 = |Q1 - Q2|^2 / 4 = 2 sin^2(theta / 2).
+  md::Vertices V(4, 3);
+  V << 0, 0, 0, 1, 0, 0, 1, 1, 0, 0, 1, 0;
+  md::Faces F(2, 3);
+  F << 0, 1, 2, 0, 2, 3;
+  md::Vertices P = V;
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(0.9, Eigen::Vector3d(1, 1, 0).normalized()).toRotationMatrix();
+  P.row(3) = (R * V.row(3).transpose()).transpose();
+  const md::IndexPairs pairs = md::dual_edges(F).pairs;
+  const md::RowMatrix s = md::rotation_spread(V, F, pairs, {V, P}, 1);
+  ASSERT_EQ(s.rows(), 2);
+  ASSERT_EQ(s.cols(), 2);
+  const double want = 2.0 * std::pow(std::sin(0.45), 2);
+  for (int i = 0; i < 2; ++i) {
+    EXPECT_NEAR(s(i, 0), 0.0, 1e-14);
+    EXPECT_NEAR(s(i, 1), want, 1e-12);
+  }
+  EXPECT_EQ(md::rotation_spread(V, F, pairs, {P}, 0).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_THROW(md::rotation_spread(V, F, pairs, {P}, -1), std::invalid_argument);
+
+  // A longer strip folded at x = 3: zero beyond the reach of the passes, invariant to a rigid
+  // motion of the pose.
+  md::Vertices G;
+  md::Faces H;
+  make_grid(10, 3, &G, &H);
+  const md::IndexPairs gp = md::dual_edges(H).pairs;
+  const md::Vertices folded = fold(G, 3.0, 0.8);
+  const md::RowMatrix a = md::rotation_spread(G, H, gp, {folded}, 3);
+  const md::Vertices moved = rigid(folded, Eigen::Vector3d(1, 2, 3), 2.0, Eigen::Vector3d(4, 5, 6));
+  const md::RowMatrix b = md::rotation_spread(G, H, gp, {moved}, 3);
+  EXPECT_LT((a - b).cwiseAbs().maxCoeff(), 1e-12);
+  for (Eigen::Index i = 0; i < H.rows(); ++i) {
+    const double x = (G(H(i, 0), 0) + G(H(i, 1), 0) + G(H(i, 2), 0)) / 3.0;
+    if (std::abs(x - 3.0) > 3.0) EXPECT_NEAR(a(i, 0), 0.0, 1e-12);
+  }
+  EXPECT_GT(a.maxCoeff(), 0.01);
+}

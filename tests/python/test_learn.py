@@ -199,3 +199,62 @@ def test_cat_learned_fields_are_in_range_and_joints_are_flexible():
         assert s.min() == pytest.approx(0.01) and s.max() <= 1.0
         # Clamp at the 99th percentile: at least 1% of the entries sit exactly at eps.
         assert np.mean(np.isclose(s, 0.01)) >= 0.01
+
+
+def face_x(v, f):
+    return v[f].mean(1)[:, 0]
+
+
+def test_rotation_spread_closed_form_on_two_faces():
+    # One quad folded along its diagonal by theta: after one pass both faces see the mean of the
+    # two rotations, spread = 3 - |Q1 + Q2|^2 / 4 = |Q1 - Q2|^2 / 4.
+    v = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    f = np.array([[0, 1, 2], [0, 2, 3]], np.int32)
+    axis = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    p = v.copy()
+    p[3] = rot(axis, 0.9) @ v[3]
+    s = md.rotation_spread(v, f, [v, p], 1)
+    assert s.shape == (2, 2)
+    np.testing.assert_allclose(s[:, 0], 0, atol=1e-14)
+    np.testing.assert_allclose(s[:, 1], gap(0.9) / 4, atol=1e-12)
+    np.testing.assert_array_equal(md.rotation_spread(v, f, [p], 0), 0.0)
+
+
+def test_rotation_spread_is_local_bounded_and_rigid_invariant(hinge):
+    v, f, poses = hinge
+    passes = 4
+    s = md.rotation_spread(v, f, poses, passes)
+    assert s.shape == (len(f), 3)
+    x = face_x(v, f)
+    # Two rigid halves: a two-point mix of Q1, Q2 has variance a(1-a)|Q1-Q2|^2 <= |Q1-Q2|^2/4.
+    for col, (x0, angle) in enumerate([(3.0, 0.4), (7.0, 1.1), (3.0, 0.7)]):
+        assert s[:, col].max() <= gap(angle) / 4 + 1e-12
+        assert abs(x[np.argmax(s[:, col])] - x0) < 1  # largest next to the fold
+        # The averaging reaches `passes` dual-graph hops (< passes columns of the grid) only.
+        np.testing.assert_allclose(s[np.abs(x - x0) > passes, col], 0, atol=1e-12)
+    rng = np.random.default_rng(7)
+    moved = [
+        p @ rot(rng.normal(size=3), rng.uniform(0, np.pi)).T + rng.normal(size=3) for p in poses
+    ]
+    np.testing.assert_allclose(md.rotation_spread(v, f, moved, passes), s, atol=1e-12)
+    # Each column depends on its own pose only.
+    np.testing.assert_allclose(md.rotation_spread(v, f, [poses[1]], passes)[:, 0], s[:, 1])
+
+
+def test_learn_stiffness_region_is_softest_at_the_larger_fold(hinge):
+    v, f, poses = hinge
+    bend, shear = md.learn_stiffness(v, f, poses, region=2, eps=0.05, clamp_percent=0)
+    _, shear0 = md.learn_stiffness(v, f, poses, eps=0.05, clamp_percent=0)
+    pairs = md.dual_edges(f)
+    xe = face_x(v, f)[pairs].mean(1)
+    assert bend.shape == (len(pairs),)
+    assert bend.min() == pytest.approx(0.05) and bend.max() <= 1.0
+    assert abs(xe[np.argmin(bend)] - 7.0) < 1
+    far = np.minimum(np.abs(xe - 3), np.abs(xe - 7)) > 2  # 2 passes reach < 2 grid columns
+    assert far.sum() > 0
+    np.testing.assert_allclose(bend[far], 1.0, atol=1e-12)
+    np.testing.assert_array_equal(shear, shear0)  # shear is not affected by region
+    with pytest.raises(ValueError, match="region"):
+        md.learn_stiffness(v, f, poses, region=-1)
+    with pytest.raises(ValueError, match="region"):
+        md.learn_stiffness(v, f, poses, region=2, anisotropic=True)

@@ -73,6 +73,17 @@ RowMatrix stiffness_from_distortion(const RowMatrix& d, const StiffnessMap& map)
 Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexPairs& pairs,
                                int passes);
 
+// Region-level bending statistic: the spread of the face rotations around their local mean,
+//   spread(i, s) = 3 - |mean_{j ~ i} Q_sj|_F^2 = mean_{j ~ i} |Q_sj - mean Q_s|_F^2   (in [0, 3])
+// where "mean over j ~ i" is `passes` passes of the face-graph averaging of smooth_distortions
+// applied to the rotation field Q_s of pose s. A rigid part (bone) has spread ~0 however it
+// moves; a region that bends as a whole (a torso) has a large spread even when every single dual
+// edge bends only a little, which the per-edge |Q_i - Q_j|^2 cannot see. Faces collapsed in a
+// pose are left out of that pose's averages (weight 0). Invariant to rigid motions of each pose.
+// Returns (m, l): column s for pose s. passes >= 0 (0: all zeros). Parallel over poses (OpenMP).
+RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexPairs& pairs,
+                          const std::vector<Vertices>& poses, int passes);
+
 struct LearnedStiffness {
   RowMatrix bend;         // (E,1) or (E,3), in [eps, 1]
   Eigen::VectorXd shear;  // (m,), in [eps, 1]
