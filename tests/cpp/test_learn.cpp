@@ -318,7 +318,9 @@ TEST(RotationSpread, ClosedFormOnTwoFacesLocalityAndRigidInvariance) {
   EXPECT_LT((a - b).cwiseAbs().maxCoeff(), 1e-12);
   for (Eigen::Index i = 0; i < H.rows(); ++i) {
     const double x = (G(H(i, 0), 0) + G(H(i, 1), 0) + G(H(i, 2), 0)) / 3.0;
-    if (std::abs(x - 3.0) > 3.0) EXPECT_NEAR(a(i, 0), 0.0, 1e-12);
+    if (std::abs(x - 3.0) > 3.0) {
+      EXPECT_NEAR(a(i, 0), 0.0, 1e-12);
+    }
   }
   EXPECT_GT(a.maxCoeff(), 0.01);
 }
