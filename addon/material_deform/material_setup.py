@@ -208,8 +208,11 @@ def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = N
     progress(0.2, f"Material Deform: learning from {len(poses)} pose(s)")
     span = s.stiffness_span
     try:
+        # Region-level bending uses the settings that won on the cat benchmark (docs/quality.md).
+        region = 0 if s.anisotropic else int(s.learn_region)
+        preset = {"region": region, "smoothing": 30, "clamp_percent": 5.0} if region else {}
         bend, shear = md.learn_stiffness(
-            rest, a.tris, poses, anisotropic=bool(s.anisotropic), eps=10.0**-span
+            rest, a.tris, poses, anisotropic=bool(s.anisotropic), eps=10.0**-span, **preset
         )
     except (ValueError, RuntimeError) as exc:
         raise BindError(f"Learning failed: {exc}") from exc

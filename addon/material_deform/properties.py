@@ -116,6 +116,15 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
         description="Learn from Shape Keys uses the unmuted shape keys whose name contains this "
         "text (empty = all)",
     )
+    learn_region: IntProperty(
+        name="Region",
+        description="0: the paper's per-edge bending. Above 0: region-level bending over this "
+        "many smoothing passes, which finds broad soft parts such as a torso (about 2000 suits a "
+        "15k-face character; isotropic only; see docs/learn.md)",
+        default=0,
+        min=0,
+        soft_max=10000,
+    )
 
     bound: BoolProperty(name="Bound", default=False, options={"HIDDEN"})
     live: BoolProperty(

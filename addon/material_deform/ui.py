@@ -56,6 +56,7 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
         row = box.row(align=True)
         row.operator("mesh.material_deform_learn_stiffness", icon="SHAPEKEY_DATA")
         row.prop(s, "learn_filter")
+        box.prop(s, "learn_region")
 
         box = layout.box()
         box.label(text="Anchors", icon="EMPTY_AXIS")

@@ -344,6 +344,24 @@ def test_learn_from_shape_keys_finds_the_joint():
     assert phi2[joint].max() < 0.3 and phi2[np.abs(z - 0.2) > 0.55].min() > 0.99
 
 
+def test_learn_region_level_finds_the_joint():
+    """Region-level learning (learn_region > 0): bending is still softest at the joint, and the
+    joint is softer than the bar's far ends."""
+    obj = tube(rings=21)
+    obj.shape_key_add(name="Basis")
+    bend_key(obj, "Bend X", 0.6, "X")
+    bend_key(obj, "Bend Y", -0.6, "Y")
+    obj.material_deform.learn_region = 20
+    assert bpy.ops.mesh.material_deform_learn_stiffness() == {"FINISHED"}
+    phi = attr(obj, "md_bend_stiffness")
+    z = edge_mid_z(obj)
+    assert 0.0 <= z[np.argmin(phi)] <= 0.4
+    joint = np.isclose(z, 0.2, atol=0.01)
+    far = np.abs(z - 0.2) > 0.8
+    print("region-level joint max", phi[joint].max(), "far min", phi[far].min())
+    assert phi[joint].max() < 0.1 < 0.9 < phi[far].min(), (phi[joint].max(), phi[far].min())
+
+
 def joint_bend(learn):
     """Bind the two-pose bar (learned or uniform material, paper-mode anchors at both ends),
     bend the top 90 degrees about x and return how much of it the joint takes: mean rotation
