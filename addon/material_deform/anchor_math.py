@@ -79,27 +79,6 @@ def compact(tris, n_vertices: int):
     return used, remap[tris]
 
 
-def face_components(n_faces: int, dual) -> np.ndarray:
-    """Connected component label per face over dual edges (min-label propagation with
-    pointer jumping; no scipy inside Blender)."""
-    dual = np.asarray(dual, dtype=np.int64).reshape(-1, 2)
-    label = np.arange(n_faces, dtype=np.int64)
-    if len(dual) == 0:
-        return label
-    f, g = dual[:, 0], dual[:, 1]
-    while True:
-        m = np.minimum(label[f], label[g])
-        new = label.copy()
-        np.minimum.at(new, f, m)
-        np.minimum.at(new, g, m)
-        np.minimum.at(new, label, new)  # hook roots
-        new = new[new]
-        new = new[new]
-        if np.array_equal(new, label):
-            return label
-        label = new
-
-
 def triangle_areas(vertices, tris) -> np.ndarray:
     v = np.asarray(vertices, dtype=np.float64)
     t = np.asarray(tris, dtype=np.int64)

@@ -194,7 +194,7 @@ def gather(obj, scene) -> Inputs:
         ms.check_anchors_in_region(region, anchor_faces, [anc.name for anc in s.anchors])
     md = _core()
     dual = np.asarray(md.dual_edges(a.tris), dtype=np.int64).reshape(-1, 2)
-    comp = am.face_components(len(a.tris), dual)
+    comp, _ = md.face_components(a.tris)
     anchored = np.unique(comp[np.concatenate(anchor_faces)])
     free = ~np.isin(comp, anchored)
     if region is not None:  # only the region is solved: faces outside never move

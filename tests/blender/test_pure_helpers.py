@@ -49,9 +49,7 @@ def test_anchor_transform_is_relative_motion_in_object_space():
     np.testing.assert_allclose(m_obj @ t @ p_local, move @ m_obj @ p_local, atol=1e-12)
 
 
-def test_components_and_compaction():
-    lab = am.face_components(5, np.array([[0, 1], [3, 4]]))
-    assert len(np.unique(lab)) == 3 and lab[0] == lab[1] and lab[3] == lab[4]
+def test_compaction():
     used, t = am.compact(np.array([[0, 2, 3]]), 5)
     assert used.tolist() == [0, 2, 3] and t.tolist() == [[0, 1, 2]]
 
