@@ -85,31 +85,6 @@ def dual_edge_bend_axes(
     return np.stack(cols, axis=1)
 
 
-def dual_to_mesh_edge(tris, dual, edge_verts) -> np.ndarray:
-    """Blender edge index crossed by each dual edge (pair of adjacent triangles), -1 when the
-    two triangles share no Blender edge (the internal diagonal of a quad or n-gon)."""
-    tris = np.asarray(tris, dtype=np.int64)
-    dual = np.asarray(dual, dtype=np.int64).reshape(-1, 2)
-    ev = np.sort(np.asarray(edge_verts, dtype=np.int64).reshape(-1, 2), axis=1)
-    out = np.full(len(dual), -1, dtype=np.int64)
-    if len(dual) == 0 or len(ev) == 0:
-        return out
-    a, b = tris[dual[:, 0]], tris[dual[:, 1]]
-    shared = (a[:, :, None] == b[:, None, :]).any(axis=2)
-    ok = shared.sum(axis=1) == 2
-    pair = np.sort(a[ok][shared[ok]].reshape(-1, 2), axis=1)
-    nv = int(max(tris.max(), ev.max()) + 1)
-    ekey = ev[:, 0] * nv + ev[:, 1]
-    order = np.argsort(ekey)
-    key = pair[:, 0] * nv + pair[:, 1]
-    pos = np.clip(np.searchsorted(ekey[order], key), 0, len(ekey) - 1)
-    found = ekey[order][pos] == key
-    idx = np.full(len(key), -1, dtype=np.int64)
-    idx[found] = order[pos[found]]
-    out[np.flatnonzero(ok)] = idx
-    return out
-
-
 def dual_values_to_edges(values, dual_edge, n_edges: int, fill: float = 1.0):
     """Per-dual-edge values ((E,) or (E,k)) -> per Blender edge (mean over the dual edges that
     cross it); edges no dual edge crosses (boundary, loose) get ``fill``. Also returns the mask

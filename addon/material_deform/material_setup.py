@@ -218,7 +218,7 @@ def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = N
         raise BindError(f"Learning failed: {exc}") from exc
     progress(0.7, "Material Deform: writing stiffness and paint layers")
     dual = np.asarray(md.dual_edges(a.tris), dtype=np.int64).reshape(-1, 2)
-    de = amap.dual_to_mesh_edge(a.tris, dual, a.edge_verts)
+    de = sm.dual_to_mesh_edge(a.tris, dual, a.edge_verts)
     n_e = len(a.edge_verts)
     n_v = len(rest)
     lp = _loop_poly(a)

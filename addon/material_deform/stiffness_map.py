@@ -81,6 +81,31 @@ def edge_stiffness(face_stiffness, loop_edge, loop_poly, n_edges: int) -> np.nda
     return out
 
 
+def dual_to_mesh_edge(tris, dual, edge_verts) -> np.ndarray:
+    """Blender edge index crossed by each dual edge (pair of adjacent triangles), -1 when the
+    two triangles share no Blender edge (the internal diagonal of a quad or n-gon)."""
+    tris = np.asarray(tris, dtype=np.int64)
+    dual = np.asarray(dual, dtype=np.int64).reshape(-1, 2)
+    ev = np.sort(np.asarray(edge_verts, dtype=np.int64).reshape(-1, 2), axis=1)
+    out = np.full(len(dual), -1, dtype=np.int64)
+    if len(dual) == 0 or len(ev) == 0:
+        return out
+    a, b = tris[dual[:, 0]], tris[dual[:, 1]]
+    shared = (a[:, :, None] == b[:, None, :]).any(axis=2)
+    ok = shared.sum(axis=1) == 2
+    pair = np.sort(a[ok][shared[ok]].reshape(-1, 2), axis=1)
+    nv = int(max(tris.max(), ev.max()) + 1)
+    ekey = ev[:, 0] * nv + ev[:, 1]
+    order = np.argsort(ekey)
+    key = pair[:, 0] * nv + pair[:, 1]
+    pos = np.clip(np.searchsorted(ekey[order], key), 0, len(ekey) - 1)
+    found = ekey[order][pos] == key
+    idx = np.full(len(key), -1, dtype=np.int64)
+    idx[found] = order[pos[found]]
+    out[np.flatnonzero(ok)] = idx
+    return out
+
+
 def dual_edge_bend(tris, dual, tri_poly, face_stiffness, edge_verts, edge_phi) -> np.ndarray:
     """Bending stiffness per dual edge (triangle pair) from per-polygon psi and per-edge phi.
 
@@ -96,24 +121,10 @@ def dual_edge_bend(tris, dual, tri_poly, face_stiffness, edge_verts, edge_phi) -
     out = 0.5 * (psi[tri_poly[f]] + psi[tri_poly[g]])
     same = tri_poly[f] == tri_poly[g]
     out[same] = psi[tri_poly[f[same]]]
-    cross = ~same
-    if cross.any() and len(phi):
-        a, b = tris[f[cross]], tris[g[cross]]
-        shared = (a[:, :, None] == b[:, None, :]).any(axis=2)  # (E,3) two True per row
-        ok = shared.sum(axis=1) == 2
-        pair = np.sort(a[ok][shared[ok]].reshape(-1, 2), axis=1)
-        ev = np.sort(np.asarray(edge_verts, dtype=np.int64).reshape(-1, 2), axis=1)
-        nv = int(max(tris.max(), ev.max()) + 1)
-        ekey = ev[:, 0] * nv + ev[:, 1]
-        order = np.argsort(ekey)
-        key = pair[:, 0] * nv + pair[:, 1]
-        pos = np.clip(np.searchsorted(ekey[order], key), 0, len(ekey) - 1)
-        found = ekey[order][pos] == key
-        vals = out[cross][ok]
-        vals[found] = phi[order][pos][found]
-        tmp = out[cross]
-        tmp[ok] = vals
-        out[cross] = tmp
+    if len(phi):
+        edge = dual_to_mesh_edge(tris, dual, edge_verts)
+        use = ~same & (edge >= 0)
+        out[use] = phi[edge[use]]
     return out
 
 

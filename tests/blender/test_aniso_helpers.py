@@ -4,6 +4,7 @@ mapping, learned values to polygons / vertices, choice of shape keys."""
 import numpy as np
 import pytest
 from material_deform import aniso_map as amap
+from material_deform import stiffness_map as sm
 
 
 def test_axes_are_the_rotation_part_in_object_space():
@@ -33,7 +34,7 @@ def test_dual_edges_map_to_blender_edges_and_back():
     tris = np.array([[0, 1, 2], [0, 2, 3], [1, 4, 2]])
     edges = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [1, 4], [4, 2]])
     dual = np.array([[0, 1], [0, 2]])
-    de = amap.dual_to_mesh_edge(tris, dual, edges)
+    de = sm.dual_to_mesh_edge(tris, dual, edges)
     assert de.tolist() == [-1, 1]
     vals, has = amap.dual_values_to_edges(np.array([[0.5, 0.2, 0.1], [0.3, 0.4, 0.9]]), de, 6)
     assert has.tolist() == [False, True, False, False, False, False]
