@@ -10,6 +10,7 @@
 
 #include "matdeform/frames.hpp"
 #include "sparse_cholesky.hpp"
+#include "task_pool.hpp"
 
 namespace matdeform {
 
@@ -178,7 +179,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   Kff.setFromTriplets(kff.begin(), kff.end());
   d.K_fp.resize(nf, static_cast<Eigen::Index>(d.fixed_all.size()));
   d.K_fp.setFromTriplets(kfp.begin(), kfp.end());
-  d.chol = std::make_unique<SparseCholesky>(Kff, /*minimize_fill=*/true);  // solved per pose
+  d.chol =
+      std::make_unique<SparseCholesky>(Kff, SparseCholesky::Reuse::PerPose);  // solved per pose
 
   // Gather lists so right-hand-side assembly runs in parallel without write races.
   d.inc_offset.assign(nf + 1, 0);
@@ -224,19 +226,21 @@ void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fix
   }
   const int nf = static_cast<int>(d.free_verts.size());
 
-#pragma omp parallel for schedule(static) if (d.m > 20000)
-  for (int i = 0; i < d.m; ++i) {
-    if (d.usable[i]) d.local[i].noalias() = d.H[i] * targets[i].transpose();
-  }
-#pragma omp parallel for schedule(static) if (d.m > 20000)
-  for (int f = 0; f < nf; ++f) {
-    Eigen::RowVector3d acc = Eigen::RowVector3d::Zero();
-    for (int s = d.inc_offset[f]; s < d.inc_offset[f + 1]; ++s) {
-      const int slot = d.inc_slot[s];
-      acc += d.local[slot / 3].row(slot % 3);
+  parallel_ranges(d.m, 4096, 8, [&](int b, int e) {
+    for (int i = b; i < e; ++i) {
+      if (d.usable[i]) d.local[i].noalias() = d.H[i] * targets[i].transpose();
     }
-    d.rhs.row(f) = acc;
-  }
+  });
+  parallel_ranges(nf, 4096, 8, [&](int b, int e) {
+    for (int f = b; f < e; ++f) {
+      Eigen::RowVector3d acc = Eigen::RowVector3d::Zero();
+      for (int s = d.inc_offset[f]; s < d.inc_offset[f + 1]; ++s) {
+        const int slot = d.inc_slot[s];
+        acc += d.local[slot / 3].row(slot % 3);
+      }
+      d.rhs.row(f) = acc;
+    }
+  });
   if (d.num_user_fixed > 0) d.fixed_pos.topRows(d.num_user_fixed) = fixed_positions;
   if (d.K_fp.cols() > 0) d.rhs.noalias() -= d.K_fp * d.fixed_pos;
   d.chol->solve(d.rhs.data(), d.sol.data(), 3);

@@ -8,18 +8,25 @@ namespace matdeform {
 
 class SparseCholesky {
  public:
+  // How often the factor will be solved with. PerPose spends more time on the ordering (least
+  // fill) and keeps the factor in its own layout for a multi-threaded substitution; Once keeps
+  // CHOLMOD's factor and solve (cheapest to set up).
+  enum class Reuse { Once, PerPose };
+
   // A: symmetric positive definite; only its lower triangle is read. Throws std::runtime_error
-  // if CHOLMOD finds it not positive definite. minimize_fill spends more time on the ordering
-  // to make every later solve cheaper; use it for factors that are solved per pose.
-  SparseCholesky(const Eigen::SparseMatrix<double>& A, bool minimize_fill);
+  // if CHOLMOD finds it not positive definite.
+  SparseCholesky(const Eigen::SparseMatrix<double>& A, Reuse reuse);
   ~SparseCholesky();
   SparseCholesky(const SparseCholesky&) = delete;
   SparseCholesky& operator=(const SparseCholesky&) = delete;
 
-  // Solves A X = B for nrhs column-major columns of length rows(). Reuses CHOLMOD's workspace
-  // between calls, so the steady state allocates nothing. Not thread-safe.
+  // Solves A X = B for nrhs column-major columns of length rows(). Reuses its workspace between
+  // calls, so the steady state allocates nothing. PerPose factors use up to num_threads()
+  // threads. Not thread-safe.
   void solve(const double* B, double* X, int nrhs) const;
   int rows() const { return n_; }
+  // Threads the last PerPose solve ran its substitution on (1 = serial; 0 for Once factors).
+  int substitution_threads() const;
 
  private:
   struct Impl;

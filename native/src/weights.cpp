@@ -92,7 +92,7 @@ RowMatrix harmonic_weights(int num_faces, const IndexPairs& pairs, const Eigen::
   }
   Eigen::SparseMatrix<double> L(nu, nu);
   L.setFromTriplets(trip.begin(), trip.end());
-  SparseCholesky chol(L, /*minimize_fill=*/false);  // solved once
+  SparseCholesky chol(L, SparseCholesky::Reuse::Once);  // solved once
   Eigen::MatrixXd sol(nu, k);
   chol.solve(rhs.data(), sol.data(), k);
   for (int f = 0; f < num_faces; ++f) {

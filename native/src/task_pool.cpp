@@ -1,0 +1,148 @@
+#include "task_pool.hpp"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <memory>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "matdeform/threads.hpp"
+
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define MD_CPU_RELAX() _mm_pause()
+#else
+#define MD_CPU_RELAX() std::this_thread::yield()
+#endif
+
+namespace matdeform {
+
+namespace {
+
+// How long an idle worker keeps polling for the next task before it sleeps: long enough to
+// bridge the serial gaps inside one deform(), short enough not to compete with the host after it.
+constexpr auto kSpin = std::chrono::microseconds(500);
+
+class TaskPool {
+ public:
+  explicit TaskPool(int workers) {
+    for (int w = 0; w < workers; ++w) threads_.emplace_back([this] { work(); });
+  }
+  ~TaskPool() {
+    {
+      std::lock_guard<std::mutex> lk(m_);
+      stop_ = true;
+      generation_.fetch_add(1, std::memory_order_release);
+    }
+    cv_.notify_all();
+    for (auto& t : threads_) t.join();
+  }
+  int workers() const { return static_cast<int>(threads_.size()); }
+
+  void run(int count, const std::function<void(int)>& task) {
+    {
+      std::unique_lock<std::mutex> lk(m_);
+      // A worker that woke up for the previous job may still be leaving it; it holds a copy of
+      // that job's count, so the claim counter must not be reset under it.
+      while (active_ > 0) {
+        lk.unlock();
+        MD_CPU_RELAX();
+        lk.lock();
+      }
+      job_ = &task;
+      count_ = count;
+      next_.store(0, std::memory_order_relaxed);
+      done_.store(0, std::memory_order_relaxed);
+      generation_.fetch_add(1, std::memory_order_release);
+    }
+    if (sleepers_.load(std::memory_order_acquire) > 0) cv_.notify_all();
+    for (int i; (i = next_.fetch_add(1, std::memory_order_relaxed)) < count;) {
+      task(i);
+      done_.fetch_add(1, std::memory_order_release);
+    }
+    while (done_.load(std::memory_order_acquire) < count) MD_CPU_RELAX();
+  }
+
+ private:
+  void work() {
+    uint64_t seen = 0;
+    for (;;) {
+      // Poll for a new job for a short while, then block until one is posted.
+      const auto t0 = std::chrono::steady_clock::now();
+      for (unsigned spin = 1; generation_.load(std::memory_order_acquire) == seen; ++spin) {
+        MD_CPU_RELAX();
+        if (spin % 256 == 0 && std::chrono::steady_clock::now() - t0 > kSpin) {
+          std::unique_lock<std::mutex> lk(m_);
+          sleepers_.fetch_add(1, std::memory_order_acq_rel);
+          cv_.wait(lk, [&] { return generation_.load(std::memory_order_acquire) != seen; });
+          sleepers_.fetch_sub(1, std::memory_order_acq_rel);
+        }
+      }
+      const std::function<void(int)>* job;
+      int count;
+      {
+        std::lock_guard<std::mutex> lk(m_);
+        if (stop_) return;
+        seen = generation_.load(std::memory_order_acquire);
+        ++active_;
+        job = job_;
+        count = count_;
+      }
+      for (int i; (i = next_.fetch_add(1, std::memory_order_relaxed)) < count;) {
+        (*job)(i);
+        done_.fetch_add(1, std::memory_order_release);
+      }
+      std::lock_guard<std::mutex> lk(m_);
+      --active_;
+    }
+  }
+
+  std::vector<std::thread> threads_;
+  std::mutex m_;
+  std::condition_variable cv_;
+  std::atomic<uint64_t> generation_{0};
+  std::atomic<int> next_{0}, done_{0}, sleepers_{0};
+  int active_ = 0;  // workers inside a job; guarded by m_
+  int count_ = 0;
+  const std::function<void(int)>* job_ = nullptr;
+  bool stop_ = false;
+};
+
+std::unique_ptr<TaskPool>& pool_for(int workers) {
+  static std::unique_ptr<TaskPool> pool;
+  if (!pool || pool->workers() != workers) {
+    pool.reset();  // joins the old workers first
+    pool = std::make_unique<TaskPool>(workers);
+  }
+  return pool;
+}
+
+}  // namespace
+
+void run_tasks(int count, const std::function<void(int)>& task) {
+  const int workers = std::min(num_threads(), count) - 1;
+  if (workers <= 0) {
+    for (int i = 0; i < count; ++i) task(i);
+    return;
+  }
+  pool_for(std::max(workers, num_threads() - 1))->run(count, task);
+}
+
+void parallel_ranges(int n, int min_size, int chunks, const std::function<void(int, int)>& body) {
+  const int parts = std::max(1, std::min(chunks, n / std::max(1, min_size)));
+  if (parts == 1 || num_threads() < 2) {
+    if (n > 0) body(0, n);
+    return;
+  }
+  run_tasks(parts, [&](int p) {
+    const int b = static_cast<int>(static_cast<int64_t>(n) * p / parts);
+    const int e = static_cast<int>(static_cast<int64_t>(n) * (p + 1) / parts);
+    body(b, e);
+  });
+}
+
+}  // namespace matdeform

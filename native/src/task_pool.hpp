@@ -1,0 +1,24 @@
+// Private: low-latency work sharing for the per-pose path (blend, right-hand side, substitution).
+//
+// Why not OpenMP here: a deform() is a few milliseconds split into several parallel steps. With
+// OpenMP's default wait policy idle threads spin for a long time after each region and steal the
+// core from the host (Blender's own threads); with the passive policy every step pays a thread
+// wake-up, which on the project's VM costs about a millisecond. This pool lets its workers spin
+// only briefly between steps, and tasks are claimed dynamically, so a worker that is late (asleep
+// or descheduled) just takes fewer tasks: a call is never slower than running serially.
+#pragma once
+
+#include <functional>
+
+namespace matdeform {
+
+// Runs task(0), ..., task(count - 1) on the calling thread plus up to num_threads() - 1 pool
+// workers, and returns when all have finished. Tasks must be independent. Not reentrant: call it
+// from one thread at a time, never from inside a task.
+void run_tasks(int count, const std::function<void(int)>& task);
+
+// Splits [0, n) into at most `chunks` contiguous ranges of at least `min_size` items and runs
+// body(begin, end) on each through run_tasks (serially when there is only one range).
+void parallel_ranges(int n, int min_size, int chunks, const std::function<void(int, int)>& body);
+
+}  // namespace matdeform
