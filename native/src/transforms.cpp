@@ -5,7 +5,15 @@
 #include <stdexcept>
 #include <string>
 
+#include "task_pool.hpp"
+
 namespace matdeform {
+
+namespace {
+// Per-pose loops over faces: a few tasks per thread so that a late worker only takes fewer.
+constexpr int kFacesPerTask = 4096;
+constexpr int kTasks = 8;
+}  // namespace
 
 Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R) {
   // Quaternion route: Eigen's matrix->quaternion conversion picks the largest diagonal pivot,
@@ -130,19 +138,24 @@ void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, 
       P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
       P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
     }
-#pragma omp parallel for schedule(static) if (m > 20000)
-    for (Eigen::Index i = 0; i < m; ++i) {
-      Eigen::Vector4d s = Eigen::Vector4d::Zero();
-      const double* w = weights.row(i).data();
-      for (Eigen::Index a = 0; a < k; ++a) s += w[a] * P.col(a);  // no temporaries
-      (*out)[static_cast<size_t>(i)] = std::exp(s(3)) * rotation_exp(s.head<3>());
-    }
+    bool scaled = false;
+    for (Eigen::Index a = 0; a < k; ++a) scaled = scaled || P(3, a) != 0.0;
+    parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
+      for (int i = b; i < e; ++i) {
+        Eigen::Vector4d s = Eigen::Vector4d::Zero();
+        const double* w = weights.row(i).data();
+        for (Eigen::Index a = 0; a < k; ++a) s += w[a] * P.col(a);  // no temporaries
+        const Eigen::Matrix3d R = rotation_exp(s.head<3>());
+        (*out)[static_cast<size_t>(i)] = scaled ? Eigen::Matrix3d(std::exp(s(3)) * R) : R;
+      }
+    });
     return;
   }
-#pragma omp parallel for schedule(static) if (m > 20000)
-  for (Eigen::Index i = 0; i < m; ++i) {
-    (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
-  }
+  parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
+    for (int i = b; i < e; ++i) {
+      (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
+    }
+  });
 }
 
 void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
@@ -162,19 +175,20 @@ void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatri
     C.col(a) = axes.transpose() * logs[static_cast<size_t>(a)].rotation;
     all_similar = all_similar && logs[static_cast<size_t>(a)].similarity;
   }
-#pragma omp parallel for schedule(static) if (m > 20000)
-  for (Eigen::Index i = 0; i < m; ++i) {
-    Eigen::Vector3d local = Eigen::Vector3d::Zero();
-    TransformLog sum;
-    sum.similarity = all_similar;
-    for (Eigen::Index a = 0; a < k; ++a) {
-      local += Eigen::Vector3d(wx(i, a), wy(i, a), wz(i, a)).cwiseProduct(C.col(a));
-      const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
-      sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
+  parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
+    for (int i = b; i < e; ++i) {
+      Eigen::Vector3d local = Eigen::Vector3d::Zero();
+      TransformLog sum;
+      sum.similarity = all_similar;
+      for (Eigen::Index a = 0; a < k; ++a) {
+        local += Eigen::Vector3d(wx(i, a), wy(i, a), wz(i, a)).cwiseProduct(C.col(a));
+        const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
+        sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
+      }
+      sum.rotation = axes * local;
+      (*out)[static_cast<size_t>(i)] = transform_exp(sum);
     }
-    sum.rotation = axes * local;
-    (*out)[static_cast<size_t>(i)] = transform_exp(sum);
-  }
+  });
 }
 
 }  // namespace matdeform
