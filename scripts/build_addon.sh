@@ -76,17 +76,18 @@ print(f"legacy add-on: {out}")
 PYEOF
 
 VERSION="$(cat "$BUILD/version")"
-# Blender's extension tool: a Blender >= 4.2 binary if there is one, else the same CLI
-# (bl_pkg/cli/blender_ext.py) shipped inside the PyPI bpy wheel, run with plain Python.
+# Blender's extension tool: `blender --command extension` of a Blender >= 4.2 binary if there is
+# one (BLENDER42=/path/to/blender), else the very handler that command dispatches to
+# (bl_pkg.cli_extension), called inside the PyPI bpy module (scripts/blender_command.py).
 EXT_CLI=()
-if [[ -n "${BLENDER42:-}" ]]; then  # e.g. BLENDER42=/opt/blender-4.5/blender
-  EXT_CLI=("$BLENDER42" --command extension)
+if [[ -n "${BLENDER42:-}" ]]; then
+  EXT_CLI=("$BLENDER42" --factory-startup --command extension)
 else
   BPY_PY="${BPY_PYTHON:-.venv-bpy/bin/python}"  # a Python with the PyPI bpy module
   [[ -x "$BPY_PY" ]] || BPY_PY="$PY"
-  CLI="$("$BPY_PY" -c 'import bpy, os; print(os.path.join(bpy.utils.system_resource("SCRIPTS"), "addons_core", "bl_pkg", "cli", "blender_ext.py"))' 2>/dev/null | tail -n1 || true)"
-  [[ -f "$CLI" ]] || CLI=""
-  if [[ -n "$CLI" ]]; then EXT_CLI=("$BPY_PY" "$CLI"); fi
+  if "$BPY_PY" -c "import bpy" >/dev/null 2>&1; then
+    EXT_CLI=("$BPY_PY" scripts/blender_command.py extension)
+  fi
 fi
 if [[ ${#EXT_CLI[@]} -gt 0 ]]; then
   rm -f "dist/material_deform-$VERSION.zip"
