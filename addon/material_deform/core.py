@@ -16,11 +16,14 @@ def load():
     global _error
     if os.path.isdir(_VENDOR) and _VENDOR not in sys.path:
         sys.path.insert(0, _VENDOR)
-    # The core's OpenMP regions fight Blender's own worker threads: on a 2-core machine one
-    # solve was ~8x slower with 2 OpenMP threads than with 1 (bench/bench_blender.py). Default
-    # to 1 thread unless the user asked for more (MATDEFORM_THREADS or OMP_NUM_THREADS).
-    threads = os.environ.get("MATDEFORM_THREADS") or os.environ.get("OMP_NUM_THREADS") or "1"
-    os.environ.setdefault("OMP_NUM_THREADS", threads)
+    # The per-pose solve shares work with its own briefly-polling worker threads (not OpenMP,
+    # whose idle threads would keep spinning against Blender's), so all cores pay off here.
+    # MATDEFORM_THREADS=N (or OMP_NUM_THREADS) overrides the count; 1 runs serially.
+    threads = (
+        os.environ.get("MATDEFORM_THREADS")
+        or os.environ.get("OMP_NUM_THREADS")
+        or str(os.cpu_count() or 1)
+    )
     try:
         import matdeform
     except ImportError as exc:
