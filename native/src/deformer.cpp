@@ -201,9 +201,15 @@ RowMatrix MaterialDeformer::axis_weights(int axis) const {
 
 Matrix3Array MaterialDeformer::face_transforms() const {
   Matrix3Array out(static_cast<size_t>(weights_full_.rows()), Eigen::Matrix3d::Identity());
-  if (blended_.size() == sub_face_ids_.size()) {
-    for (size_t s = 0; s < sub_face_ids_.size(); ++s) out[sub_face_ids_[s]] = blended_[s];
+  if (last_logs_.empty()) return out;
+  Matrix3Array blended;
+  if (anisotropic()) {
+    blend_all_anisotropic(last_logs_, axis_weights_[0], axis_weights_[1], axis_weights_[2], axes_,
+                          &blended);
+  } else {
+    blend_all(last_logs_, axis_weights_[0], &blended);
   }
+  for (size_t s = 0; s < sub_face_ids_.size(); ++s) out[sub_face_ids_[s]] = blended[s];
   return out;
 }
 
@@ -226,13 +232,6 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
                                   "] has a non-finite translation");
     }
   }
-  if (anisotropic()) {
-    blend_all_anisotropic(logs, axis_weights_[0], axis_weights_[1], axis_weights_[2], axes_,
-                          &blended_);
-  } else {
-    blend_all(logs, axis_weights_[0], &blended_);
-  }
-
   const PoissonRepositioner& rep = repositioner(has_translation);
   const std::vector<int>& fixed = rep.fixed();
   Vertices fixed_pos(static_cast<Eigen::Index>(fixed.size()), 3);
@@ -265,7 +264,18 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
     fixed_pos.row(static_cast<Eigen::Index>(s)) = p.transpose();
   }
   Vertices sub_out;
-  rep.solve(blended_, fixed_pos, &sub_out);
+  // Blend (Eq. 2) block by block inside the solve, where each block is consumed right away.
+  rep.solve(
+      [&](int b, int e, Eigen::Matrix3d* T) {
+        if (anisotropic()) {
+          blend_range_anisotropic(logs, axis_weights_[0], axis_weights_[1], axis_weights_[2], axes_,
+                                  b, e, T);
+        } else {
+          blend_range(logs, axis_weights_[0], b, e, T);
+        }
+      },
+      fixed_pos, &sub_out);
+  last_logs_ = logs;
   if (sub_vertices_.size() == static_cast<size_t>(rest_.rows())) return sub_out;
   Vertices out = rest_;
   for (size_t s = 0; s < sub_vertices_.size(); ++s) {

@@ -217,18 +217,27 @@ int PoissonRepositioner::num_unknowns() const { return static_cast<int>(impl_->f
 
 void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fixed_positions,
                                 Vertices* out) const {
-  const Impl& d = *impl_;
-  if (static_cast<int>(targets.size()) != d.m) {
+  if (static_cast<int>(targets.size()) != impl_->m) {
     throw std::invalid_argument("one target transform per face expected");
   }
+  solve([&](int b, int e, Eigen::Matrix3d* T) { std::copy(&targets[b], &targets[b] + (e - b), T); },
+        fixed_positions, out);
+}
+
+void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fixed_positions,
+                                Vertices* out) const {
+  const Impl& d = *impl_;
   if (fixed_positions.rows() != d.num_user_fixed) {
     throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
   }
   const int nf = static_cast<int>(d.free_verts.size());
 
+  // Each block of targets lands in `local` and is turned into its right-hand-side rows in place.
   parallel_ranges(d.m, 4096, 8, [&](int b, int e) {
+    targets(b, e, &d.local[static_cast<size_t>(b)]);
     for (int i = b; i < e; ++i) {
-      if (d.usable[i]) d.local[i].noalias() = d.H[i] * targets[i].transpose();
+      const Eigen::Matrix3d T = d.local[i];
+      if (d.usable[i]) d.local[i].noalias() = d.H[i] * T.transpose();
     }
   });
   parallel_ranges(nf, 4096, 8, [&](int b, int e) {

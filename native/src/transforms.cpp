@@ -121,53 +121,54 @@ Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* 
   return transform_exp(sum);
 }
 
-void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out) {
-  const Eigen::Index m = weights.rows();
+void blend_range(const std::vector<TransformLog>& logs, const RowMatrix& weights, int begin,
+                 int end, Eigen::Matrix3d* out) {
   const Eigen::Index k = weights.cols();
   if (static_cast<Eigen::Index>(logs.size()) != k) {
+    throw std::invalid_argument("blend: one log per weight column expected");
+  }
+  bool all_similar = true;
+  for (const auto& l : logs) all_similar = all_similar && l.similarity;
+  if (!all_similar) {
+    for (int i = begin; i < end; ++i) out[i - begin] = blend_logs(logs, weights.row(i).data());
+    return;
+  }
+  // Closed form: exp(s I + [w]x) = e^s * Rodrigues(w), no eigen-solves per face.
+  Eigen::Matrix<double, 4, Eigen::Dynamic> P(4, k);
+  bool scaled = false;
+  for (Eigen::Index a = 0; a < k; ++a) {
+    P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
+    P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
+    scaled = scaled || P(3, a) != 0.0;
+  }
+  for (int i = begin; i < end; ++i) {
+    Eigen::Vector4d s = Eigen::Vector4d::Zero();
+    const double* w = weights.row(i).data();
+    for (Eigen::Index a = 0; a < k; ++a) s += w[a] * P.col(a);  // no temporaries
+    const Eigen::Matrix3d R = rotation_exp(s.head<3>());
+    out[i - begin] = scaled ? Eigen::Matrix3d(std::exp(s(3)) * R) : R;
+  }
+}
+
+void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out) {
+  const int m = static_cast<int>(weights.rows());
+  if (static_cast<Eigen::Index>(logs.size()) != weights.cols()) {
     throw std::invalid_argument("blend_all: one log per weight column expected");
   }
   out->resize(static_cast<size_t>(m));
-  bool all_similar = true;
-  for (const auto& l : logs) all_similar = all_similar && l.similarity;
-
-  if (all_similar) {
-    // Closed form: exp(s I + [w]x) = e^s * Rodrigues(w), no eigen-solves per face.
-    Eigen::Matrix<double, 4, Eigen::Dynamic> P(4, k);
-    for (Eigen::Index a = 0; a < k; ++a) {
-      P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
-      P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
-    }
-    bool scaled = false;
-    for (Eigen::Index a = 0; a < k; ++a) scaled = scaled || P(3, a) != 0.0;
-    parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
-      for (int i = b; i < e; ++i) {
-        Eigen::Vector4d s = Eigen::Vector4d::Zero();
-        const double* w = weights.row(i).data();
-        for (Eigen::Index a = 0; a < k; ++a) s += w[a] * P.col(a);  // no temporaries
-        const Eigen::Matrix3d R = rotation_exp(s.head<3>());
-        (*out)[static_cast<size_t>(i)] = scaled ? Eigen::Matrix3d(std::exp(s(3)) * R) : R;
-      }
-    });
-    return;
-  }
-  parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
-    for (int i = b; i < e; ++i) {
-      (*out)[static_cast<size_t>(i)] = blend_logs(logs, weights.row(i).data());
-    }
-  });
+  parallel_ranges(m, kFacesPerTask, kTasks,
+                  [&](int b, int e) { blend_range(logs, weights, b, e, out->data() + b); });
 }
 
-void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
-                           const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
-                           Matrix3Array* out) {
+void blend_range_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                             const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                             int begin, int end, Eigen::Matrix3d* out) {
   const Eigen::Index m = wx.rows();
   const Eigen::Index k = wx.cols();
   if (static_cast<Eigen::Index>(logs.size()) != k || wy.rows() != m || wz.rows() != m ||
       wy.cols() != k || wz.cols() != k) {
     throw std::invalid_argument("blend_all_anisotropic: weight shapes do not match");
   }
-  out->resize(static_cast<size_t>(m));
   // Rotation logs in the axes' frame: row c holds every anchor's component along axis c.
   Eigen::Matrix<double, 3, Eigen::Dynamic> C(3, k);
   bool all_similar = true;
@@ -175,19 +176,31 @@ void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatri
     C.col(a) = axes.transpose() * logs[static_cast<size_t>(a)].rotation;
     all_similar = all_similar && logs[static_cast<size_t>(a)].similarity;
   }
-  parallel_ranges(static_cast<int>(m), kFacesPerTask, kTasks, [&](int b, int e) {
-    for (int i = b; i < e; ++i) {
-      Eigen::Vector3d local = Eigen::Vector3d::Zero();
-      TransformLog sum;
-      sum.similarity = all_similar;
-      for (Eigen::Index a = 0; a < k; ++a) {
-        local += Eigen::Vector3d(wx(i, a), wy(i, a), wz(i, a)).cwiseProduct(C.col(a));
-        const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
-        sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
-      }
-      sum.rotation = axes * local;
-      (*out)[static_cast<size_t>(i)] = transform_exp(sum);
+  for (int i = begin; i < end; ++i) {
+    Eigen::Vector3d local = Eigen::Vector3d::Zero();
+    TransformLog sum;
+    sum.similarity = all_similar;
+    for (Eigen::Index a = 0; a < k; ++a) {
+      local += Eigen::Vector3d(wx(i, a), wy(i, a), wz(i, a)).cwiseProduct(C.col(a));
+      const double w = (wx(i, a) + wy(i, a) + wz(i, a)) / 3.0;
+      sum.log_stretch += w * logs[static_cast<size_t>(a)].log_stretch;
     }
+    sum.rotation = axes * local;
+    out[i - begin] = transform_exp(sum);
+  }
+}
+
+void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                           const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                           Matrix3Array* out) {
+  const int m = static_cast<int>(wx.rows());
+  if (static_cast<Eigen::Index>(logs.size()) != wx.cols() || wy.rows() != m || wz.rows() != m ||
+      wy.cols() != wx.cols() || wz.cols() != wx.cols()) {
+    throw std::invalid_argument("blend_all_anisotropic: weight shapes do not match");
+  }
+  out->resize(static_cast<size_t>(m));
+  parallel_ranges(m, kFacesPerTask, kTasks, [&](int b, int e) {
+    blend_range_anisotropic(logs, wx, wy, wz, axes, b, e, out->data() + b);
   });
 }
 

@@ -5,6 +5,7 @@
 #include <optional>
 #include <vector>
 
+#include "matdeform/transforms.hpp"
 #include "matdeform/types.hpp"
 
 namespace matdeform {
@@ -80,7 +81,9 @@ class MaterialDeformer {
   std::vector<int> av_offsets_, av_anchors_;
   mutable std::unique_ptr<PoissonRepositioner> follow_;
   mutable std::unique_ptr<PoissonRepositioner> free_;
-  mutable Matrix3Array blended_;
+  // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the
+  // per-pose path never stores all m transforms.
+  mutable std::vector<TransformLog> last_logs_;
 };
 
 }  // namespace matdeform

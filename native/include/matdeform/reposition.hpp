@@ -1,6 +1,7 @@
 // Poisson vertex repositioning under shear stiffness (Popa et al. 2006, Eq. 3-4).
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -33,6 +34,12 @@ class PoissonRepositioner {
   // targets: m per-face 3x3 transforms T_i. fixed_positions: (|fixed|,3) in the order given to
   // the constructor. Writes (n,3) positions into out.
   void solve(const Matrix3Array& targets, const Vertices& fixed_positions, Vertices* out) const;
+
+  // The same with the targets produced block by block: targets(begin, end, T) writes
+  // T_begin .. T_end-1 into T[0 .. end - begin), possibly from several threads at once (disjoint
+  // blocks). Consuming each block while it is in cache saves storing all m transforms.
+  using TargetBlocks = std::function<void(int begin, int end, Eigen::Matrix3d* out)>;
+  void solve(const TargetBlocks& targets, const Vertices& fixed_positions, Vertices* out) const;
 
   const std::vector<int>& fixed() const { return fixed_; }
   int num_unknowns() const;

@@ -43,6 +43,9 @@ Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* 
 
 // Blends for all faces: weights is (m,k), output m matrices. Parallel over faces.
 void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out);
+// Serial kernel of blend_all for faces [begin, end), written to out[0 .. end - begin).
+void blend_range(const std::vector<TransformLog>& logs, const RowMatrix& weights, int begin,
+                 int end, Eigen::Matrix3d* out);
 
 // Anisotropic blend (paper Sec. 5). Each anchor rotation log is split into its components along
 // the columns of `axes` (c_x = <log Q, log R_x> up to the basis normalisation); component x is
@@ -51,5 +54,9 @@ void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, 
 void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
                            const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
                            Matrix3Array* out);
+// Serial kernel of blend_all_anisotropic for faces [begin, end), written to out[0 .. end - begin).
+void blend_range_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                             const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                             int begin, int end, Eigen::Matrix3d* out);
 
 }  // namespace matdeform
