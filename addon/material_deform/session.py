@@ -443,6 +443,10 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         raise BindError("Object is not evaluated here")
     now = np.stack(mats)
     bind_m = np.array([tuple(a.bind_matrix) for a in ancs], dtype=np.float64).reshape(-1, 4, 4)
+    if np.array_equal(now, bind_m):
+        # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
+        # round-off): re-evaluating it after undo or reloading leaves the key as it was
+        return entry.rest.copy()
     t = am.anchor_transforms(m_obj, now, bind_m)
     x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
     if entry.used is None:
