@@ -129,6 +129,24 @@ def test_undo_add_anchor_in_edit_mode():
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}  # the redone anchor works
 
 
+def test_undo_add_anchor_while_bound_keeps_the_bind():
+    obj = bound_bar()
+    select_faces(obj, lambda p: abs(p.center.z - 0.1) < 0.01)  # a ring in the middle
+    push("selected")
+    assert run(bpy.ops.mesh.material_deform_add_anchor) == {"FINISHED"}
+    assert "Anchors changed" in session.stale_reason(obj)
+
+    obj = undo()  # in Edit Mode: the bind is valid again once we leave it
+    assert obj.mode == "EDIT" and len(obj.material_deform.anchors) == 2
+    assert obj.material_deform.rebind_reason == "" and session.stale_reason(obj) == ""
+    bpy.ops.object.mode_set(mode="OBJECT")
+    top_empty(obj).location.x += 1.0
+    update()
+    idx = anchor_vertices(obj, obj.material_deform.anchors[0])
+    np.testing.assert_allclose(output(obj)[idx, 0] - rest(obj)[idx, 0], 1.0, atol=1e-5)
+    assert session.stale_reason(obj) == ""
+
+
 def test_undo_bind_unbinds_and_drops_the_solver():
     obj = tube()
     two_end_anchors(obj)
@@ -212,6 +230,10 @@ def test_undo_update_operator_then_live_on_recomputes():
     obj = undo()  # the Update is undone, the Empty stays moved
     assert output(obj).tobytes() == at_rest.tobytes()
     assert top_empty(obj).location.x == np.float32(0.7)
+    obj = redo()
+    assert output(obj).tobytes() == moved.tobytes()
+    obj = undo()
+    assert output(obj).tobytes() == at_rest.tobytes()
     obj.material_deform.live = True
     obj.update_tag()  # (setting Live from Python tags nothing) the next live update must not
     update()  # skip the write as if the undone Update's result were still in the key
