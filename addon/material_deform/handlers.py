@@ -1,5 +1,6 @@
 """Live updates: Empties moved interactively (depsgraph) or by animation (frame change, also
-in background renders), and rebuilding solvers after a .blend is loaded."""
+in background renders), rebuilding solvers after a .blend is loaded and re-validating them after
+undo/redo."""
 
 from __future__ import annotations
 
@@ -43,10 +44,21 @@ def on_load(_filepath=None, *_args):
         session.prepare_scene(scene)
 
 
+@persistent
+def on_undo(scene=None, *_args):
+    # Memfile undo replaced the datablocks but kept their addresses: re-validate what is cached
+    # under them (a solver for a bind that was undone must not be used).
+    scene = scene if isinstance(scene, bpy.types.Scene) else bpy.context.scene
+    if scene is not None:
+        session.after_undo(scene, bpy.data.objects)
+
+
 _HANDLERS = (
     ("depsgraph_update_post", on_depsgraph_update),
     ("frame_change_post", on_frame_change),
     ("load_post", on_load),
+    ("undo_post", on_undo),
+    ("redo_post", on_undo),
 )
 
 

@@ -64,6 +64,31 @@ def clear_cache() -> None:
     _last_mode.clear()
 
 
+def after_undo(scene, objects) -> None:
+    """Undo/redo loaded other saved data under the cache. Memfile undo keeps the objects'
+    addresses, so cached solvers and stale verdicts would still be found but may belong to
+    another state: drop the solvers of objects that are no longer bound, forget every verdict
+    and re-check the bound objects of the scene against their mesh (as after the operators).
+    Objects in Edit Mode are checked when they leave it (``live_update``)."""
+    bound = {o.as_pointer() for o in objects if bridge.is_mesh(o) and settings(o).bound}
+    for key in [k for k in _cache if k not in bound]:
+        del _cache[key]
+    _stale.clear()
+    for obj in scene.objects:
+        key = obj.as_pointer()
+        if key not in bound:
+            continue
+        entry = _cache.get(key)
+        if entry is not None:
+            entry.last_key = None  # the output key was restored too: rewrite it on next update
+        if obj.mode == "OBJECT":
+            try:
+                full_check(obj, scene)
+            except Exception as exc:  # runs in a handler: never raise into Blender
+                _stale[key] = f"Check failed: {exc}"
+                _cache.pop(key, None)
+
+
 def mark_stale(obj, reason: str) -> None:
     """Called when a bound setting changes in the UI: stop updating until the next Bind."""
     s = settings(obj) if bridge.is_mesh(obj) else None
@@ -443,6 +468,10 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         raise BindError("Object is not evaluated here")
     now = np.stack(mats)
     bind_m = np.array([tuple(a.bind_matrix) for a in ancs], dtype=np.float64).reshape(-1, 4, 4)
+    if np.array_equal(now, bind_m):
+        # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
+        # round-off): re-evaluating it after undo or reloading leaves the key as it was
+        return entry.rest.copy()
     t = am.anchor_transforms(m_obj, now, bind_m)
     x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
     if entry.used is None:
