@@ -10,6 +10,7 @@
 #include "matdeform/reposition.hpp"
 #include "matdeform/transforms.hpp"
 #include "matdeform/weights.hpp"
+#include "task_pool.hpp"
 
 namespace matdeform {
 
@@ -215,6 +216,7 @@ Matrix3Array MaterialDeformer::face_transforms() const {
 
 Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
                                   bool has_translation, const Vertices* pinned_positions) const {
+  const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
   const size_t k = anchors_.size();
   if (transforms.size() != k) {
     throw std::invalid_argument("transforms: expected " + std::to_string(k) + " transforms, got " +

@@ -42,6 +42,7 @@ class TaskPool {
     for (auto& t : threads_) t.join();
   }
   int workers() const { return static_cast<int>(threads_.size()); }
+  void park() { park_.fetch_add(1, std::memory_order_release); }
 
   void run(int count, const std::function<void(int)>& task) {
     {
@@ -70,12 +71,14 @@ class TaskPool {
  private:
   void work() {
     uint64_t seen = 0;
+    uint64_t parked = park_.load(std::memory_order_acquire);  // as of the last job taken
     for (;;) {
-      // Poll for a new job for a short while, then block until one is posted.
+      // Poll for a new job for a short while (or until parked), then block until one is posted.
       const auto t0 = std::chrono::steady_clock::now();
       for (unsigned spin = 1; generation_.load(std::memory_order_acquire) == seen; ++spin) {
         MD_CPU_RELAX();
-        if (spin % 256 == 0 && std::chrono::steady_clock::now() - t0 > kSpin) {
+        if (park_.load(std::memory_order_relaxed) != parked ||
+            (spin % 256 == 0 && std::chrono::steady_clock::now() - t0 > kSpin)) {
           std::unique_lock<std::mutex> lk(m_);
           sleepers_.fetch_add(1, std::memory_order_acq_rel);
           cv_.wait(lk, [&] { return generation_.load(std::memory_order_acquire) != seen; });
@@ -88,6 +91,7 @@ class TaskPool {
         std::lock_guard<std::mutex> lk(m_);
         if (stop_) return;
         seen = generation_.load(std::memory_order_acquire);
+        parked = park_.load(std::memory_order_acquire);
         ++active_;
         job = job_;
         count = count_;
@@ -104,7 +108,7 @@ class TaskPool {
   std::vector<std::thread> threads_;
   std::mutex m_;
   std::condition_variable cv_;
-  std::atomic<uint64_t> generation_{0};
+  std::atomic<uint64_t> generation_{0}, park_{0};
   std::atomic<int> next_{0}, done_{0}, sleepers_{0};
   int active_ = 0;  // workers inside a job; guarded by m_
   int count_ = 0;
@@ -112,8 +116,13 @@ class TaskPool {
   bool stop_ = false;
 };
 
-std::unique_ptr<TaskPool>& pool_for(int workers) {
+std::unique_ptr<TaskPool>& the_pool() {
   static std::unique_ptr<TaskPool> pool;
+  return pool;
+}
+
+std::unique_ptr<TaskPool>& pool_for(int workers) {
+  std::unique_ptr<TaskPool>& pool = the_pool();
   if (!pool || pool->workers() != workers) {
     pool.reset();  // joins the old workers first
     pool = std::make_unique<TaskPool>(workers);
@@ -130,6 +139,10 @@ void run_tasks(int count, const std::function<void(int)>& task) {
     return;
   }
   pool_for(std::max(workers, num_threads() - 1))->run(count, task);
+}
+
+void park_workers() {
+  if (the_pool()) the_pool()->park();
 }
 
 void parallel_ranges(int n, int min_size, int chunks, const std::function<void(int, int)>& body) {

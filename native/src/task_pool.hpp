@@ -17,6 +17,18 @@ namespace matdeform {
 // from one thread at a time, never from inside a task.
 void run_tasks(int count, const std::function<void(int)>& task);
 
+// Tells idle workers to sleep now instead of polling for more tasks: call it when a burst of
+// run_tasks calls (one deform()) is over, so the workers leave the cores to the host at once.
+void park_workers();
+
+// Calls park_workers() when it goes out of scope.
+struct ParkWorkersOnExit {
+  ParkWorkersOnExit() = default;
+  ParkWorkersOnExit(const ParkWorkersOnExit&) = delete;
+  ParkWorkersOnExit& operator=(const ParkWorkersOnExit&) = delete;
+  ~ParkWorkersOnExit() { park_workers(); }
+};
+
 // Splits [0, n) into at most `chunks` contiguous ranges of at least `min_size` items and runs
 // body(begin, end) on each through run_tasks (serially when there is only one range).
 void parallel_ranges(int n, int min_size, int chunks, const std::function<void(int, int)>& body);

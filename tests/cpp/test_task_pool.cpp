@@ -40,6 +40,18 @@ TEST(TaskPool, WorkersSleepAndWakeUp) {
   matdeform::set_num_threads(before);
 }
 
+TEST(TaskPool, ParkedWorkersWakeForTheNextCall) {
+  const int before = matdeform::num_threads();
+  matdeform::set_num_threads(2);
+  for (int rep = 0; rep < 500; ++rep) {
+    std::atomic<int> ran{0};
+    matdeform::run_tasks(4, [&](int) { ran.fetch_add(1); });
+    matdeform::park_workers();
+    ASSERT_EQ(ran.load(), 4);
+  }
+  matdeform::set_num_threads(before);
+}
+
 TEST(TaskPool, RangesCoverEachIndexOnce) {
   const int before = matdeform::num_threads();
   matdeform::set_num_threads(2);
