@@ -233,7 +233,7 @@ void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fix
   const int nf = static_cast<int>(d.free_verts.size());
 
   // Each block of targets lands in `local` and is turned into its right-hand-side rows in place.
-  parallel_ranges(d.m, 4096, 8, [&](int b, int e) {
+  parallel_ranges(d.m, 8192, 8, [&](int b, int e) {
     targets(b, e, &d.local[static_cast<size_t>(b)]);
     for (int i = b; i < e; ++i) {
       const Eigen::Matrix3d T = d.local[i];

@@ -155,8 +155,8 @@ struct Substitution {
     sched.threads = threads;
     double total = 0.0;
     for (double w : own_work) total += w;
-    // Below this many touched entries a parallel region costs more than it saves.
-    constexpr double kMinParallelWork = 60000.0;
+    // Below this many entries (~15k-face meshes) waking a parked worker costs more than it saves.
+    constexpr double kMinParallelWork = 400000.0;
     if (threads < 2 || !postordered || total < kMinParallelWork) {
       sched.threads = 1;
       return;

@@ -11,7 +11,7 @@ namespace matdeform {
 
 namespace {
 // Per-pose loops over faces: a few tasks per thread so that a late worker only takes fewer.
-constexpr int kFacesPerTask = 4096;
+constexpr int kFacesPerTask = 8192;
 constexpr int kTasks = 8;
 }  // namespace
 

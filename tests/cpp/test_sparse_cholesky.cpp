@@ -67,7 +67,7 @@ TEST(SparseCholesky, SmallSystemsMatchDenseLLT) {
 }
 
 TEST(SparseCholesky, ParallelSubstitutionMatchesSerial) {
-  const Eigen::SparseMatrix<double> A = sheet_and_path(70, 60, 500, 1e-3);
+  const Eigen::SparseMatrix<double> A = sheet_and_path(200, 160, 500, 1e-3);
   SparseCholesky chol(A, SparseCholesky::Reuse::PerPose);
   const int before = matdeform::num_threads();
   for (int k : {3, 6}) {
