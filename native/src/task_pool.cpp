@@ -133,12 +133,12 @@ std::unique_ptr<TaskPool>& pool_for(int workers) {
 }  // namespace
 
 void run_tasks(int count, const std::function<void(int)>& task) {
-  const int workers = std::min(num_threads(), count) - 1;
-  if (workers <= 0) {
+  const int threads = num_threads();
+  if (threads < 2 || count < 2) {
     for (int i = 0; i < count; ++i) task(i);
     return;
   }
-  pool_for(std::max(workers, num_threads() - 1))->run(count, task);
+  pool_for(threads - 1)->run(count, task);
 }
 
 void park_workers() {
