@@ -9,6 +9,7 @@
 #include <string>
 
 #include "matdeform/frames.hpp"
+#include "simd.hpp"
 #include "sparse_cholesky.hpp"
 #include "task_pool.hpp"
 
@@ -21,6 +22,51 @@ int find_root(std::vector<int>& parent, int x) {
   while (parent[x] != x) x = parent[x] = parent[parent[x]];
   return x;
 }
+
+// local[i] = T_i * H_i^T for usable faces in [b, e): column l is local vertex l's term.
+MD_ALWAYS_INLINE void condense_body(const Eigen::Matrix3d* H, const char* usable,
+                                    Eigen::Matrix3d* local, int b, int e) {
+  for (int i = b; i < e; ++i) {
+    if (!usable[i]) continue;
+    const Eigen::Matrix3d T = local[i];
+    local[i].noalias() = T * H[i].transpose();
+  }
+}
+void condense_base(const Eigen::Matrix3d* H, const char* usable, Eigen::Matrix3d* local, int b,
+                   int e) {
+  condense_body(H, usable, local, b, e);
+}
+MD_TARGET_AVX2 void condense_avx2(const Eigen::Matrix3d* H, const char* usable,
+                                  Eigen::Matrix3d* local, int b, int e) {
+  condense_body(H, usable, local, b, e);
+}
+
+// rhs row f = sum of the terms of free vertex f, for f in [b, e).
+MD_ALWAYS_INLINE void gather_body(const int* offset, const int* slot, const double* local,
+                                  Col3* rhs, int b, int e) {
+  double* rx = rhs->col(0).data();
+  double* ry = rhs->col(1).data();
+  double* rz = rhs->col(2).data();
+  for (int f = b; f < e; ++f) {
+    double x = 0.0, y = 0.0, z = 0.0;
+    for (int s = offset[f]; s < offset[f + 1]; ++s) {
+      const double* t = local + slot[s];
+      x += t[0];
+      y += t[1];
+      z += t[2];
+    }
+    rx[f] = x;
+    ry[f] = y;
+    rz[f] = z;
+  }
+}
+void gather_base(const int* offset, const int* slot, const double* local, Col3* rhs, int b, int e) {
+  gather_body(offset, slot, local, rhs, b, e);
+}
+MD_TARGET_AVX2 void gather_avx2(const int* offset, const int* slot, const double* local, Col3* rhs,
+                                int b, int e) {
+  gather_body(offset, slot, local, rhs, b, e);
+}
 }  // namespace
 
 struct PoissonRepositioner::Impl {
@@ -29,7 +75,8 @@ struct PoissonRepositioner::Impl {
   Faces faces;
   std::vector<char> usable;
   // Per usable face: psi * (G_v - m_v4 g_4^T / mu), the condensed right-hand-side operator.
-  // Row l is the contribution of local vertex l: rhs_l = H.row(l) * T^T.
+  // Row l is the contribution of local vertex l: rhs_l = H.row(l) * T^T, i.e. column l of
+  // T * H^T, which is what `local` holds per face during a solve.
   std::vector<Eigen::Matrix3d> H;
   std::vector<int> free_index;  // n; -1 for fixed vertices
   std::vector<int> free_verts;  // free vertex ids in unknown order
@@ -37,7 +84,8 @@ struct PoissonRepositioner::Impl {
   int num_user_fixed = 0;
   Eigen::SparseMatrix<double, Eigen::RowMajor> K_fp;  // free x fixed_all coupling
   std::unique_ptr<SparseCholesky> chol;
-  std::vector<int> inc_offset, inc_slot;  // per free vertex: face*3+local slots (CSR)
+  // Per free vertex (CSR): offsets 9 * face + 3 * local of its terms in `local` (as doubles).
+  std::vector<int> inc_offset, inc_slot;
   // Components solved only up to translation: restore their rest vertex mean afterwards.
   std::vector<int> gauge_comp_of;  // n; -1 when the vertex's component has a fixed vertex
   std::vector<Eigen::Vector3d> gauge_rest_mean;
@@ -198,7 +246,7 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
     if (!d.usable[i]) continue;
     for (int l = 0; l < 3; ++l) {
       const int f = d.free_index[faces(i, l)];
-      if (f >= 0) d.inc_slot[cursor[f]++] = 3 * i + l;
+      if (f >= 0) d.inc_slot[cursor[f]++] = 9 * i + 3 * l;
     }
   }
 
@@ -232,23 +280,15 @@ void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fix
   }
   const int nf = static_cast<int>(d.free_verts.size());
 
-  // Each block of targets lands in `local` and is turned into its right-hand-side rows in place.
+  // Each block of targets lands in `local` and is turned into its right-hand-side terms in place.
+  const bool avx2 = cpu_has_avx2_fma();
   parallel_ranges(d.m, 8192, 8, [&](int b, int e) {
     targets(b, e, &d.local[static_cast<size_t>(b)]);
-    for (int i = b; i < e; ++i) {
-      const Eigen::Matrix3d T = d.local[i];
-      if (d.usable[i]) d.local[i].noalias() = d.H[i] * T.transpose();
-    }
+    (avx2 ? condense_avx2 : condense_base)(d.H.data(), d.usable.data(), d.local.data(), b, e);
   });
   parallel_ranges(nf, 4096, 8, [&](int b, int e) {
-    for (int f = b; f < e; ++f) {
-      Eigen::RowVector3d acc = Eigen::RowVector3d::Zero();
-      for (int s = d.inc_offset[f]; s < d.inc_offset[f + 1]; ++s) {
-        const int slot = d.inc_slot[s];
-        acc += d.local[slot / 3].row(slot % 3);
-      }
-      d.rhs.row(f) = acc;
-    }
+    (avx2 ? gather_avx2 : gather_base)(d.inc_offset.data(), d.inc_slot.data(),
+                                       d.local.front().data(), &d.rhs, b, e);
   });
   if (d.num_user_fixed > 0) d.fixed_pos.topRows(d.num_user_fixed) = fixed_positions;
   if (d.K_fp.cols() > 0) d.rhs.noalias() -= d.K_fp * d.fixed_pos;

@@ -11,15 +11,8 @@
 #include <vector>
 
 #include "matdeform/threads.hpp"
+#include "simd.hpp"
 #include "task_pool.hpp"
-
-// The substitution kernels are memory-bound gathers of 4-wide rows: an AVX2 clone halves their
-// instruction count on CPUs that have it, while the wheel stays baseline x86-64.
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__)
-#define MD_KERNEL_CLONES __attribute__((target_clones("avx2", "default")))
-#else
-#define MD_KERNEL_CLONES
-#endif
 
 namespace matdeform {
 
@@ -28,34 +21,71 @@ namespace {
 constexpr int kWidth = 4;  // right-hand sides per pass; 3 coordinates fill it with one pad
 
 // Forward pass L y = b over rows [b, e) in gather form: y_i = (b_i - sum_j<i L_ij y_j) / L_ii.
-// All j are descendants of i in the elimination tree.
-MD_KERNEL_CLONES void forward_rows(const int* rp, const int* ri, const double* rx,
-                                   const double* dinv, double* Y, int b, int e) {
+// All j are descendants of i in the elimination tree. Four partial sums break the FMA latency
+// chain of long rows.
+MD_ALWAYS_INLINE void forward_body(const int* rp, const int* ri, const double* rx,
+                                   const double* dinv, Vec4d* Y, int b, int e) {
   for (int i = b; i < e; ++i) {
-    double acc[kWidth];
-    for (int c = 0; c < kWidth; ++c) acc[c] = Y[kWidth * i + c];
-    for (int q = rp[i]; q < rp[i + 1]; ++q) {
-      const double l = rx[q];
-      const double* y = Y + kWidth * ri[q];
-      for (int c = 0; c < kWidth; ++c) acc[c] -= l * y[c];
+    Vec4d a0 = Y[i], a1 = {0, 0, 0, 0}, a2 = a1, a3 = a1;
+    int q = rp[i];
+    const int qe = rp[i + 1];
+    for (; q + 3 < qe; q += 4) {
+      a0 -= rx[q] * Y[ri[q]];
+      a1 -= rx[q + 1] * Y[ri[q + 1]];
+      a2 -= rx[q + 2] * Y[ri[q + 2]];
+      a3 -= rx[q + 3] * Y[ri[q + 3]];
     }
-    for (int c = 0; c < kWidth; ++c) Y[kWidth * i + c] = acc[c] * dinv[i];
+    for (; q < qe; ++q) a0 -= rx[q] * Y[ri[q]];
+    Y[i] = ((a0 + a1) + (a2 + a3)) * dinv[i];
   }
 }
 
 // Backward pass L^T x = y over rows [b, e), last first, in scatter form on the same storage: once
 // x_i is final it is subtracted from the rows of its descendants j < i. Descendants of a subtree
 // stay inside it, so subtrees still run on different threads without conflicts.
-MD_KERNEL_CLONES void backward_rows(const int* rp, const int* ri, const double* rx,
-                                    const double* dinv, double* Y, int b, int e) {
+MD_ALWAYS_INLINE void backward_body(const int* rp, const int* ri, const double* rx,
+                                    const double* dinv, Vec4d* Y, int b, int e) {
   for (int i = e - 1; i >= b; --i) {
-    double x[kWidth];
-    for (int c = 0; c < kWidth; ++c) x[c] = Y[kWidth * i + c] *= dinv[i];
-    for (int q = rp[i]; q < rp[i + 1]; ++q) {
-      const double l = rx[q];
-      double* y = Y + kWidth * ri[q];
-      for (int c = 0; c < kWidth; ++c) y[c] -= l * x[c];
-    }
+    const Vec4d x = Y[i] * dinv[i];
+    Y[i] = x;
+    for (int q = rp[i]; q < rp[i + 1]; ++q) Y[ri[q]] -= rx[q] * x;
+  }
+}
+
+void forward_base(const int* rp, const int* ri, const double* rx, const double* dinv, Vec4d* Y,
+                  int b, int e) {
+  forward_body(rp, ri, rx, dinv, Y, b, e);
+}
+MD_TARGET_AVX2 void forward_avx2(const int* rp, const int* ri, const double* rx, const double* dinv,
+                                 Vec4d* Y, int b, int e) {
+  forward_body(rp, ri, rx, dinv, Y, b, e);
+}
+void backward_base(const int* rp, const int* ri, const double* rx, const double* dinv, Vec4d* Y,
+                   int b, int e) {
+  backward_body(rp, ri, rx, dinv, Y, b, e);
+}
+MD_TARGET_AVX2 void backward_avx2(const int* rp, const int* ri, const double* rx,
+                                  const double* dinv, Vec4d* Y, int b, int e) {
+  backward_body(rp, ri, rx, dinv, Y, b, e);
+}
+
+void forward_rows(const int* rp, const int* ri, const double* rx, const double* dinv, double* Y,
+                  int b, int e) {
+  Vec4d* y = reinterpret_cast<Vec4d*>(Y);
+  if (cpu_has_avx2_fma()) {
+    forward_avx2(rp, ri, rx, dinv, y, b, e);
+  } else {
+    forward_base(rp, ri, rx, dinv, y, b, e);
+  }
+}
+
+void backward_rows(const int* rp, const int* ri, const double* rx, const double* dinv, double* Y,
+                   int b, int e) {
+  Vec4d* y = reinterpret_cast<Vec4d*>(Y);
+  if (cpu_has_avx2_fma()) {
+    backward_avx2(rp, ri, rx, dinv, y, b, e);
+  } else {
+    backward_base(rp, ri, rx, dinv, y, b, e);
   }
 }
 

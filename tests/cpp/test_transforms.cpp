@@ -27,6 +27,22 @@ TEST(Transforms, RotationExpMatchesMatrixExponential) {
   }
 }
 
+TEST(Transforms, RotationExpIsExactOnBothSidesOfTheSeriesRange) {
+  // rotation_exp sums a power series up to angle sqrt(10) and uses sin/cos beyond; both sides
+  // and tiny angles must match the axis-angle matrix to round-off.
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g;
+  const double angles[] = {0.0,    1e-12,  1e-5, 0.1, 1.0, 2.0,           M_PI,
+                           3.1622, 3.1623, 3.17, 4.0, 5.5, 2 * M_PI - 0.1};
+  for (double theta : angles) {
+    for (int t = 0; t < 10; ++t) {
+      const Eigen::Vector3d axis = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(theta, axis).toRotationMatrix();
+      EXPECT_LT((rotation_exp(theta * axis) - R).cwiseAbs().maxCoeff(), 2e-15) << "theta=" << theta;
+    }
+  }
+}
+
 TEST(Transforms, RotationLogRoundTripIncludingNearPi) {
   std::mt19937 rng(2);
   std::normal_distribution<double> g;
