@@ -270,4 +270,5 @@ def main():
         Path(args.out).write_text(text + "\n")
 
 
-main()
+if __name__ == "__main__":  # also under `blender --python`
+    main()

@@ -472,8 +472,11 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
         # round-off): re-evaluating it after undo or reloading leaves the key as it was
         return entry.rest.copy()
-    t = am.anchor_transforms(m_obj, now, bind_m)
-    x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
+    try:
+        t = am.anchor_transforms(m_obj, now, bind_m)
+        x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
+    except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
+        raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
     if entry.used is None:
         return x
     out = entry.rest.copy()

@@ -77,6 +77,20 @@ def test_deleted_empty_before_and_after_bind():
     assert snapshot(obj) == before
 
 
+def test_empty_scaled_to_zero_after_bind():
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    top.empty.location.x += 0.5
+    update()
+    result = output(obj).copy()
+    top.empty.scale = (1.0, 0.0, 1.0)
+    update()
+    np.testing.assert_array_equal(output(obj), result)  # the live update wrote nothing
+    expect_error(bpy.ops.mesh.material_deform_update, "Cannot pose")
+    np.testing.assert_array_equal(output(obj), result)
+
+
 def test_empty_unlinked_from_scene():
     obj = tube()
     top, _ = two_end_anchors(obj)

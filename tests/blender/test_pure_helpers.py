@@ -1,6 +1,7 @@
 """bpy-free helpers of the add-on (stiffness mapping, anchor maths)."""
 
 import numpy as np
+import pytest
 from material_deform import anchor_math as am
 from material_deform import stiffness_map as sm
 
@@ -54,12 +55,18 @@ def test_compaction():
     assert used.tolist() == [0, 2, 3] and t.tolist() == [[0, 1, 2]]
 
 
-def test_affine_inverse_matches_numpy():
+def test_affine_inverse_inverts_and_rejects_zero_scale():
     rng = np.random.default_rng(2)
     m = np.zeros((5, 4, 4))
     m[:, :3, :] = rng.normal(size=(5, 3, 4))
     m[:, 3, 3] = 1
-    np.testing.assert_allclose(am.affine_inverse(m), np.linalg.inv(m), atol=1e-10)
+    np.testing.assert_allclose(
+        am.affine_inverse(m) @ m, np.broadcast_to(np.eye(4), m.shape), atol=1e-9
+    )
+    flat = m[:2].copy()
+    flat[1, :3, 2] = 0.0  # an Empty scaled to zero along one axis
+    with pytest.raises(ValueError, match="singular"):
+        am.affine_inverse(flat)
     np.testing.assert_allclose(
         am.anchor_transforms(m[0], m[1:3], m[3:5])[1],
         np.linalg.inv(m[0]) @ m[2] @ np.linalg.inv(m[4]) @ m[0],
