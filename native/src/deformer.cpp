@@ -268,12 +268,12 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
   Vertices sub_out;
   // Blend (Eq. 2) block by block inside the solve, where each block is consumed right away.
   rep.solve(
-      [&](int b, int e, Eigen::Matrix3d* T) {
+      [&](int gb, int ge, double* T) {
         if (anisotropic()) {
-          blend_range_anisotropic(logs, axis_weights_[0], axis_weights_[1], axis_weights_[2], axes_,
-                                  b, e, T);
+          blend_groups_anisotropic(logs, axis_weights_[0], axis_weights_[1], axis_weights_[2],
+                                   axes_, gb, ge, T);
         } else {
-          blend_range(logs, axis_weights_[0], b, e, T);
+          blend_groups(logs, axis_weights_[0], gb, ge, T);
         }
       },
       fixed_pos, &sub_out);

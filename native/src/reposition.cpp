@@ -4,6 +4,7 @@
 #include <Eigen/SparseCore>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -23,25 +24,37 @@ int find_root(std::vector<int>& parent, int x) {
   return x;
 }
 
-// local[i] = T_i * H_i^T for usable faces in [b, e): column l is local vertex l's term.
-MD_ALWAYS_INLINE void condense_body(const Eigen::Matrix3d* H, const char* usable,
-                                    Eigen::Matrix3d* local, int b, int e) {
-  for (int i = b; i < e; ++i) {
-    if (!usable[i]) continue;
-    const Eigen::Matrix3d T = local[i];
-    local[i].noalias() = T * H[i].transpose();
-  }
-}
-void condense_base(const Eigen::Matrix3d* H, const char* usable, Eigen::Matrix3d* local, int b,
-                   int e) {
-  condense_body(H, usable, local, b, e);
-}
-MD_TARGET_AVX2 void condense_avx2(const Eigen::Matrix3d* H, const char* usable,
-                                  Eigen::Matrix3d* local, int b, int e) {
-  condense_body(H, usable, local, b, e);
+// Position of entry e (column-major) of face i's matrix in the grouped layout.
+inline size_t group_index(int i, int e) {
+  return static_cast<size_t>(kGroupStride) * (i / kGroupFaces) + 4 * e + i % kGroupFaces;
 }
 
-// rhs row f = sum of the terms of free vertex f, for f in [b, e).
+// For the groups [gb, ge) (grouped layout, types.hpp): local holds T on entry and T * H^T on
+// return, whose column l is the right-hand-side term of the face's local vertex l. H is zero for
+// unusable faces and padding lanes.
+MD_ALWAYS_INLINE void condense_body(const double* H, double* local, int gb, int ge) {
+  for (int g = gb; g < ge; ++g) {
+    // A group is nine Vec4d: entry e of its four faces.
+    const Vec4d* h = reinterpret_cast<const Vec4d*>(H + static_cast<size_t>(kGroupStride) * g);
+    Vec4d* t = reinterpret_cast<Vec4d*>(local + static_cast<size_t>(kGroupStride) * g);
+    Vec4d T[9];
+    for (int e = 0; e < 9; ++e) T[e] = t[e];
+    for (int r = 0; r < 3; ++r) {
+      for (int c = 0; c < 3; ++c) {  // (T H^T)(r,c) = sum_j T(r,j) H(c,j)
+        t[r + 3 * c] = T[r] * h[c] + T[r + 3] * h[c + 3] + T[r + 6] * h[c + 6];
+      }
+    }
+  }
+}
+void condense_base(const double* H, double* local, int gb, int ge) {
+  condense_body(H, local, gb, ge);
+}
+MD_TARGET_AVX2 void condense_avx2(const double* H, double* local, int gb, int ge) {
+  condense_body(H, local, gb, ge);
+}
+
+// rhs row f = sum of the terms of free vertex f, for f in [b, e). A term is a column of a face's
+// T * H^T: three doubles 4 apart in the grouped layout.
 MD_ALWAYS_INLINE void gather_body(const int* offset, const int* slot, const double* local,
                                   Col3* rhs, int b, int e) {
   double* rx = rhs->col(0).data();
@@ -52,8 +65,8 @@ MD_ALWAYS_INLINE void gather_body(const int* offset, const int* slot, const doub
     for (int s = offset[f]; s < offset[f + 1]; ++s) {
       const double* t = local + slot[s];
       x += t[0];
-      y += t[1];
-      z += t[2];
+      y += t[4];
+      z += t[8];
     }
     rx[f] = x;
     ry[f] = y;
@@ -74,24 +87,25 @@ struct PoissonRepositioner::Impl {
   Vertices rest;
   Faces faces;
   std::vector<char> usable;
-  // Per usable face: psi * (G_v - m_v4 g_4^T / mu), the condensed right-hand-side operator.
-  // Row l is the contribution of local vertex l: rhs_l = H.row(l) * T^T, i.e. column l of
-  // T * H^T, which is what `local` holds per face during a solve.
-  std::vector<Eigen::Matrix3d> H;
+  // Per usable face: psi * (G_v - m_v4 g_4^T / mu), the condensed right-hand-side operator, in
+  // the grouped layout (types.hpp; zero for unusable faces and padding). Row l is the
+  // contribution of local vertex l: rhs_l = H.row(l) * T^T, i.e. column l of T * H^T, which is
+  // what `local` holds per face during a solve.
+  std::vector<double> H;
   std::vector<int> free_index;  // n; -1 for fixed vertices
   std::vector<int> free_verts;  // free vertex ids in unknown order
   std::vector<int> fixed_all;   // user fixed, then loose vertices, then gauge vertices
   int num_user_fixed = 0;
   Eigen::SparseMatrix<double, Eigen::RowMajor> K_fp;  // free x fixed_all coupling
   std::unique_ptr<SparseCholesky> chol;
-  // Per free vertex (CSR): offsets 9 * face + 3 * local of its terms in `local` (as doubles).
+  // Per free vertex (CSR): where its terms start in `local` (column `local` of a face's T H^T).
   std::vector<int> inc_offset, inc_slot;
   // Components solved only up to translation: restore their rest vertex mean afterwards.
   std::vector<int> gauge_comp_of;  // n; -1 when the vertex's component has a fixed vertex
   std::vector<Eigen::Vector3d> gauge_rest_mean;
   std::vector<double> gauge_count;
 
-  mutable std::vector<Eigen::Matrix3d> local;  // m
+  mutable std::vector<double> local;  // grouped layout, kGroupStride per group
   mutable Col3 rhs, sol, fixed_pos;
 };
 
@@ -117,8 +131,11 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   }
 
   // Local condensed matrices per face.
+  if (d.m > (std::numeric_limits<int>::max() - kGroupStride) / 9) {
+    throw std::invalid_argument("faces: too many for 32-bit offsets");
+  }
   d.usable.assign(d.m, 0);
-  d.H.assign(d.m, Eigen::Matrix3d::Zero());
+  d.H.assign(static_cast<size_t>(kGroupStride) * num_groups(d.m), 0.0);
   std::vector<Eigen::Matrix3d> Kloc(d.m, Eigen::Matrix3d::Zero());
   for (int i = 0; i < d.m; ++i) {
     const Eigen::Vector3d a = vertices.row(faces(i, 0)), b = vertices.row(faces(i, 1)),
@@ -139,7 +156,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
     const double mu = M(3, 3);
     const Eigen::Vector3d mv4 = M.block<3, 1>(0, 3);
     Kloc[i] = M.topLeftCorner<3, 3>() - mv4 * mv4.transpose() / mu;
-    d.H[i] = psi * (G.topRows<3>() - mv4 * G.row(3) / mu);
+    const Eigen::Matrix3d Hi = psi * (G.topRows<3>() - mv4 * G.row(3) / mu);
+    for (int e = 0; e < 9; ++e) d.H[group_index(i, e)] = Hi.data()[e];
     d.usable[i] = 1;
   }
 
@@ -246,11 +264,11 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
     if (!d.usable[i]) continue;
     for (int l = 0; l < 3; ++l) {
       const int f = d.free_index[faces(i, l)];
-      if (f >= 0) d.inc_slot[cursor[f]++] = 9 * i + 3 * l;
+      if (f >= 0) d.inc_slot[cursor[f]++] = static_cast<int>(group_index(i, 3 * l));
     }
   }
 
-  d.local.assign(d.m, Eigen::Matrix3d::Zero());
+  d.local.assign(d.H.size(), 0.0);
   d.rhs.resize(nf, 3);
   d.sol.resize(nf, 3);
   d.fixed_pos.resize(static_cast<Eigen::Index>(d.fixed_all.size()), 3);
@@ -268,8 +286,15 @@ void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fix
   if (static_cast<int>(targets.size()) != impl_->m) {
     throw std::invalid_argument("one target transform per face expected");
   }
-  solve([&](int b, int e, Eigen::Matrix3d* T) { std::copy(&targets[b], &targets[b] + (e - b), T); },
-        fixed_positions, out);
+  const int m = impl_->m;
+  solve(
+      [&](int gb, int ge, double* T) {
+        for (int i = kGroupFaces * gb; i < std::min(kGroupFaces * ge, m); ++i) {
+          for (int e = 0; e < 9; ++e)
+            T[group_index(i, e) - group_index(kGroupFaces * gb, 0)] = targets[i].data()[e];
+        }
+      },
+      fixed_positions, out);
 }
 
 void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fixed_positions,
@@ -282,13 +307,13 @@ void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fix
 
   // Each block of targets lands in `local` and is turned into its right-hand-side terms in place.
   const bool avx2 = cpu_has_avx2_fma();
-  parallel_ranges(d.m, 8192, 8, [&](int b, int e) {
-    targets(b, e, &d.local[static_cast<size_t>(b)]);
-    (avx2 ? condense_avx2 : condense_base)(d.H.data(), d.usable.data(), d.local.data(), b, e);
+  parallel_ranges(num_groups(d.m), 8192 / kGroupFaces, 8, [&](int gb, int ge) {
+    targets(gb, ge, &d.local[static_cast<size_t>(kGroupStride) * gb]);
+    (avx2 ? condense_avx2 : condense_base)(d.H.data(), d.local.data(), gb, ge);
   });
   parallel_ranges(nf, 4096, 8, [&](int b, int e) {
-    (avx2 ? gather_avx2 : gather_base)(d.inc_offset.data(), d.inc_slot.data(),
-                                       d.local.front().data(), &d.rhs, b, e);
+    (avx2 ? gather_avx2 : gather_base)(d.inc_offset.data(), d.inc_slot.data(), d.local.data(),
+                                       &d.rhs, b, e);
   });
   if (d.num_user_fixed > 0) d.fixed_pos.topRows(d.num_user_fixed) = fixed_positions;
   if (d.K_fp.cols() > 0) d.rhs.noalias() -= d.K_fp * d.fixed_pos;

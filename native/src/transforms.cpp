@@ -1,9 +1,11 @@
 #include "matdeform/transforms.hpp"
 
 #include <Eigen/Dense>
+#include <algorithm>
 #include <cmath>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "simd.hpp"
 #include "task_pool.hpp"
@@ -162,29 +164,89 @@ Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* 
 }
 
 namespace {
-// Blend of similarity logs for faces [begin, end): P holds per anchor (rotation log, log scale)
-// as 4 doubles, W the (m,k) row-major weights. exp(s I + [w]x) = e^s Rodrigues(w).
+// Per anchor (rotation log, log scale) as 4 doubles; false if some anchor is not a similarity.
+bool similarity_logs(const std::vector<TransformLog>& logs, std::vector<double>* P, bool* scaled) {
+  P->assign(4 * logs.size(), 0.0);
+  *scaled = false;
+  for (size_t a = 0; a < logs.size(); ++a) {
+    if (!logs[a].similarity) return false;
+    for (int c = 0; c < 3; ++c) (*P)[4 * a + c] = logs[a].rotation(c);
+    (*P)[4 * a + 3] = logs[a].log_stretch(0, 0);
+    *scaled = *scaled || (*P)[4 * a + 3] != 0.0;
+  }
+  return true;
+}
+
+// Isotropic similarity blend, exp(s I + [w]x) = e^s Rodrigues(w), for the faces of groups
+// [gb, ge), four at a time: W is the (m,k) row-major weights, P as from similarity_logs.
 MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, const double* W,
-                                         int begin, int end, Eigen::Matrix3d* out) {
-  for (int i = begin; i < end; ++i) {
-    const double* w = W + static_cast<size_t>(i) * k;
-    double x = 0.0, y = 0.0, z = 0.0, s = 0.0;
+                                         int m, int gb, int ge, double* out) {
+  for (int g = gb; g < ge; ++g) {
+    const int f0 = kGroupFaces * g;
+    Vec4d x = {0.0, 0.0, 0.0, 0.0}, y = x, z = x, s = x;
     for (int a = 0; a < k; ++a) {
-      x += w[a] * P[4 * a];
-      y += w[a] * P[4 * a + 1];
-      z += w[a] * P[4 * a + 2];
-      s += w[a] * P[4 * a + 3];
+      Vec4d w;
+      for (int l = 0; l < kGroupFaces; ++l) {
+        w[l] = f0 + l < m ? W[static_cast<size_t>(f0 + l) * k + a] : 0.0;  // padding: identity
+      }
+      x += w * P[4 * a];
+      y += w * P[4 * a + 1];
+      z += w * P[4 * a + 2];
+      s += w * P[4 * a + 3];
     }
-    rodrigues(x, y, z, scaled ? std::exp(s) : 1.0, &out[i - begin]);
+    const Vec4d t2 = x * x + y * y + z * z;
+    const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
+    Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
+    for (int j = kSeriesTerms - 2; j >= 0; --j) {
+      A = A * t2 + kSeries.a[j];
+      B = B * t2 + kSeries.b[j];
+    }
+    Vec4d sc = {1.0, 1.0, 1.0, 1.0};
+    for (int l = 0; l < kGroupFaces; ++l) {
+      if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
+        const double t = std::sqrt(t2[l]);
+        A[l] = std::sin(t) / t;
+        B[l] = 2.0 * std::sin(0.5 * t) * std::sin(0.5 * t) / t2[l];
+      }
+      if (scaled) sc[l] = std::exp(s[l]);
+    }
+    A *= sc;
+    B *= sc;
+    const Vec4d xx = x * x, yy = y * y, zz = z * z, xy = x * y, xz = x * z, yz = y * z;
+    Vec4d* o = reinterpret_cast<Vec4d*>(out + static_cast<size_t>(kGroupStride) * (g - gb));
+    o[0] = sc - B * (yy + zz);
+    o[1] = A * z + B * xy;
+    o[2] = B * xz - A * y;
+    o[3] = B * xy - A * z;
+    o[4] = sc - B * (xx + zz);
+    o[5] = A * x + B * yz;
+    o[6] = A * y + B * xz;
+    o[7] = B * yz - A * x;
+    o[8] = sc - B * (xx + yy);
   }
 }
-void blend_similar_base(const double* P, int k, bool scaled, const double* W, int begin, int end,
-                        Eigen::Matrix3d* out) {
-  blend_similar_body(P, k, scaled, W, begin, end, out);
+void blend_similar_base(const double* P, int k, bool scaled, const double* W, int m, int gb, int ge,
+                        double* out) {
+  blend_similar_body(P, k, scaled, W, m, gb, ge, out);
 }
-MD_TARGET_AVX2 void blend_similar_avx2(const double* P, int k, bool scaled, const double* W,
-                                       int begin, int end, Eigen::Matrix3d* out) {
-  blend_similar_body(P, k, scaled, W, begin, end, out);
+MD_TARGET_AVX2 void blend_similar_avx2(const double* P, int k, bool scaled, const double* W, int m,
+                                       int gb, int ge, double* out) {
+  blend_similar_body(P, k, scaled, W, m, gb, ge, out);
+}
+
+// Groups [gb, ge) from a per-face kernel that writes faces [b, e) to T[0 .. e - b).
+template <class PerFace>
+void groups_from_faces(int m, int gb, int ge, double* out, const PerFace& per_face) {
+  Eigen::Matrix3d T[kGroupFaces];
+  for (int g = gb; g < ge; ++g) {
+    const int b = kGroupFaces * g, e = std::min(b + kGroupFaces, m);
+    per_face(b, e, T);
+    double* o = out + static_cast<size_t>(kGroupStride) * (g - gb);
+    for (int l = 0; l < kGroupFaces; ++l) {
+      const Eigen::Matrix3d& M = b + l < e ? T[l] : Eigen::Matrix3d::Identity().eval();
+      for (int c = 0; c < 9; ++c) o[4 * c + l] = M.data()[c];
+    }
+  }
 }
 }  // namespace
 
@@ -201,19 +263,39 @@ void blend_range(const std::vector<TransformLog>& logs, const RowMatrix& weights
     return;
   }
   // Closed form: exp(s I + [w]x) = e^s * Rodrigues(w), no eigen-solves per face.
-  Eigen::Matrix<double, 4, Eigen::Dynamic> P(4, k);
+  std::vector<double> P;
   bool scaled = false;
-  for (Eigen::Index a = 0; a < k; ++a) {
-    P.col(a).head<3>() = logs[static_cast<size_t>(a)].rotation;
-    P(3, a) = logs[static_cast<size_t>(a)].log_stretch(0, 0);
-    scaled = scaled || P(3, a) != 0.0;
+  similarity_logs(logs, &P, &scaled);
+  for (int i = begin; i < end; ++i) {
+    const double* w = weights.row(i).data();
+    double x = 0.0, y = 0.0, z = 0.0, s = 0.0;
+    for (Eigen::Index a = 0; a < k; ++a) {
+      x += w[a] * P[4 * a];
+      y += w[a] * P[4 * a + 1];
+      z += w[a] * P[4 * a + 2];
+      s += w[a] * P[4 * a + 3];
+    }
+    rodrigues(x, y, z, scaled ? std::exp(s) : 1.0, &out[i - begin]);
   }
-  const double* W = weights.data();
-  if (cpu_has_avx2_fma()) {
-    blend_similar_avx2(P.data(), static_cast<int>(k), scaled, W, begin, end, out);
-  } else {
-    blend_similar_base(P.data(), static_cast<int>(k), scaled, W, begin, end, out);
+}
+
+void blend_groups(const std::vector<TransformLog>& logs, const RowMatrix& weights, int group_begin,
+                  int group_end, double* out) {
+  const int m = static_cast<int>(weights.rows());
+  const int k = static_cast<int>(weights.cols());
+  if (static_cast<int>(logs.size()) != k) {
+    throw std::invalid_argument("blend: one log per weight column expected");
   }
+  std::vector<double> P;
+  bool scaled = false;
+  if (!similarity_logs(logs, &P, &scaled)) {
+    groups_from_faces(m, group_begin, group_end, out, [&](int b, int e, Eigen::Matrix3d* T) {
+      blend_range(logs, weights, b, e, T);
+    });
+    return;
+  }
+  (cpu_has_avx2_fma() ? blend_similar_avx2 : blend_similar_base)(
+      P.data(), k, scaled, weights.data(), m, group_begin, group_end, out);
 }
 
 void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out) {
@@ -254,6 +336,15 @@ void blend_range_anisotropic(const std::vector<TransformLog>& logs, const RowMat
     sum.rotation = axes * local;
     out[i - begin] = transform_exp(sum);
   }
+}
+
+void blend_groups_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                              const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                              int group_begin, int group_end, double* out) {
+  groups_from_faces(static_cast<int>(wx.rows()), group_begin, group_end, out,
+                    [&](int b, int e, Eigen::Matrix3d* T) {
+                      blend_range_anisotropic(logs, wx, wy, wz, axes, b, e, T);
+                    });
 }
 
 void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,

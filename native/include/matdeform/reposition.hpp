@@ -35,10 +35,11 @@ class PoissonRepositioner {
   // the constructor. Writes (n,3) positions into out.
   void solve(const Matrix3Array& targets, const Vertices& fixed_positions, Vertices* out) const;
 
-  // The same with the targets produced block by block: targets(begin, end, T) writes
-  // T_begin .. T_end-1 into T[0 .. end - begin), possibly from several threads at once (disjoint
-  // blocks). Consuming each block while it is in cache saves storing all m transforms.
-  using TargetBlocks = std::function<void(int begin, int end, Eigen::Matrix3d* out)>;
+  // The same with the targets produced block by block: targets(group_begin, group_end, T) writes
+  // the transforms of face groups [group_begin, group_end) in the grouped layout (types.hpp) to
+  // T[0 ..], padding lanes included (any finite value), possibly from several threads at once
+  // (disjoint blocks). Consuming each block while it is in cache saves storing all m transforms.
+  using TargetBlocks = std::function<void(int group_begin, int group_end, double* out)>;
   void solve(const TargetBlocks& targets, const Vertices& fixed_positions, Vertices* out) const;
 
   const std::vector<int>& fixed() const { return fixed_; }

@@ -47,6 +47,12 @@ void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, 
 void blend_range(const std::vector<TransformLog>& logs, const RowMatrix& weights, int begin,
                  int end, Eigen::Matrix3d* out);
 
+// blend_range for the faces of groups [group_begin, group_end), written in the grouped layout
+// (types.hpp) from out[0]; lanes past the last face get the identity. Isotropic similarity
+// blends (the usual case) run four faces at a time.
+void blend_groups(const std::vector<TransformLog>& logs, const RowMatrix& weights, int group_begin,
+                  int group_end, double* out);
+
 // Anisotropic blend (paper Sec. 5). Each anchor rotation log is split into its components along
 // the columns of `axes` (c_x = <log Q, log R_x> up to the basis normalisation); component x is
 // blended with weights wx, and so on. The stretch part uses the mean of the three weights.
@@ -58,5 +64,9 @@ void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatri
 void blend_range_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
                              const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
                              int begin, int end, Eigen::Matrix3d* out);
+// blend_range_anisotropic for whole groups, in the grouped layout (see blend_groups).
+void blend_groups_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
+                              const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
+                              int group_begin, int group_end, double* out);
 
 }  // namespace matdeform

@@ -13,4 +13,11 @@ using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::R
 using Matrix3Array = std::vector<Eigen::Matrix3d>;  // one 3x3 per face or anchor
 using AnchorList = std::vector<std::vector<int>>;   // per anchor: face indices
 
+// Per-face 3x3 matrices in groups of four faces, structure of arrays, as the per-pose kernels
+// use them (four faces fill one AVX2 register): entry e (column-major, 0..8) of face 4 g + l is
+// element kGroupStride * g + 4 * e + l. A mesh of m faces has (m + 3) / 4 groups.
+constexpr int kGroupFaces = 4;
+constexpr int kGroupStride = 36;  // doubles per group
+inline int num_groups(int num_faces) { return (num_faces + kGroupFaces - 1) / kGroupFaces; }
+
 }  // namespace matdeform
