@@ -112,6 +112,10 @@ struct Substitution {
   mutable Schedule sched;
   mutable std::vector<double> Y;
 
+  // The factor comes from a relaxed supernodal factorisation, which stores explicit zeros
+  // (about a quarter of the entries on mesh Laplacians): they are dropped from the rows, which
+  // only removes dependencies. The elimination tree is still taken from the full structure, so
+  // every remaining entry L_ij links i to a descendant j and the subtree schedule stays valid.
   Substitution(const cholmod_factor* L) {
     if (L->is_super || !L->is_ll) throw std::runtime_error("unexpected CHOLMOD factor type");
     n = static_cast<int>(L->n);
@@ -133,7 +137,7 @@ struct Substitution {
       dinv[j] = 1.0 / Lx[b];
       for (int q = b + 1; q < e; ++q) {
         const int i = Li[q];
-        ++rp[i + 1];
+        if (Lx[q] != 0.0) ++rp[i + 1];
         if (parent[j] < 0 || i < parent[j]) parent[j] = i;
       }
     }
@@ -143,6 +147,7 @@ struct Substitution {
     std::vector<int> cursor(rp.begin(), rp.end() - 1);
     for (int j = 0; j < n; ++j) {  // columns in order: each row's entries come out sorted
       for (int q = Lp[j] + 1; q < Lp[j] + Lnz[j]; ++q) {
+        if (Lx[q] == 0.0) continue;
         const int i = Li[q];
         ri[cursor[i]] = j;
         rx[cursor[i]++] = Lx[q];
