@@ -438,6 +438,24 @@ def _matrix_key(obj, depsgraph, scene=None) -> bytes:
     return b"".join(b"-" if m is None else m.tobytes() for m in mats)
 
 
+def _check_axes(obj, entry, depsgraph) -> None:
+    """Rebind is needed if the anisotropy axes moved since bind. The axes come from an SVD
+    (LAPACK, which keeps an OpenBLAS thread spinning in bpy 4.x), so they are recomputed only
+    when the object's or the axes Empty's matrix changed since the last check."""
+    from . import material_setup
+
+    emp = settings(obj).axes_empty
+    mats = [bridge.world_matrix(o, depsgraph) for o in (obj, emp) if o is not None]
+    key = b"".join(m.tobytes() for m in mats if m is not None)
+    if entry.extra.get("axes_checked") == key:
+        return
+    now_axes = material_setup.axes(obj, depsgraph)
+    if now_axes is None or not np.allclose(now_axes, entry.extra["axes"], atol=1e-6):
+        mark_stale(obj, "Axes Empty changed since bind - click Bind again")
+        raise BindError("Axes Empty changed since bind - click Bind again")
+    entry.extra["axes_checked"] = key
+
+
 def compute(obj, scene, depsgraph=None) -> np.ndarray:
     """Deformed positions (n,3) float64 for the current Empty transforms."""
     entry = entry_for(obj, scene)
@@ -448,12 +466,7 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         raise BindError(_stale[key])
     ancs = _anchor_empties(obj, scene)
     if entry.extra.get("axes") is not None:
-        from . import material_setup
-
-        now_axes = material_setup.axes(obj, depsgraph)
-        if now_axes is None or not np.allclose(now_axes, entry.extra["axes"], atol=1e-6):
-            mark_stale(obj, "Axes Empty changed since bind - click Bind again")
-            raise BindError("Axes Empty changed since bind - click Bind again")
+        _check_axes(obj, entry, depsgraph)
     if len(ancs) != entry.n_anchors:
         raise BindError("Anchors changed since bind - click Bind again")
     mats = [bridge.world_matrix(a.empty, depsgraph) for a in ancs]
@@ -473,7 +486,7 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         # round-off): re-evaluating it after undo or reloading leaves the key as it was
         return entry.rest.copy()
     try:
-        t = am.anchor_transforms(m_obj, now, bind_m)
+        t = entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m)
         x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
     except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
         raise BindError(f"Cannot pose '{obj.name}': {exc}") from None

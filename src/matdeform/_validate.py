@@ -100,6 +100,15 @@ def as_stiffness(x, size: int, name: str) -> np.ndarray:
     return np.ascontiguousarray(a)
 
 
+def _det3(a: np.ndarray) -> np.ndarray:
+    """Determinants of (k,3,3) matrices as triple products. Not np.linalg.det: deform() is
+    called per live update, and any LAPACK call makes the OpenBLAS bundled with PyPI numpy keep
+    a thread spinning on a core for as long as calls keep coming, taking it from the solver."""
+    r1, r2 = a[:, 1, :], a[:, 2, :]
+    cross = r1[:, [1, 2, 0]] * r2[:, [2, 0, 1]] - r1[:, [2, 0, 1]] * r2[:, [1, 2, 0]]
+    return np.einsum("kj,kj->k", a[:, 0, :], cross)
+
+
 def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     """(count,3,3) or (count,4,4) finite, linear part with det > 0, affine bottom row."""
     try:
@@ -110,7 +119,7 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
         raise _fail(name, f"expected shape ({count},3,3) or ({count},4,4), got {t.shape}")
     if not np.isfinite(t).all():
         raise _fail(name, "contains NaN or infinity")
-    det = np.linalg.det(t[:, :3, :3])
+    det = _det3(t[:, :3, :3])
     if (det <= 0).any():
         a = int(np.flatnonzero(det <= 0)[0])
         raise _fail(name, f"transform {a} has det {det[a]:.3g}; rotation and scale need det > 0")

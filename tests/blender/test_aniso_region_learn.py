@@ -167,6 +167,21 @@ def twist_and_bend(aniso, **kw):
     return twist_mid, middle_bend(obj), twisted, obj
 
 
+def test_anisotropic_live_updates_call_no_lapack(monkeypatch):
+    from test_workflow import _forbid_lapack
+
+    obj, top = _fig5_bar(True, axes_empty=(0.0, math.pi / 2, 0.0), swap=True)
+    top.empty.rotation_euler.z = 0.3
+    update()  # first update after bind checks the axes once
+    before = output(obj).copy()
+    _forbid_lapack(monkeypatch)
+    top.empty.rotation_euler.z = 0.9
+    update()
+    after = output(obj).copy()
+    monkeypatch.undo()
+    assert np.abs(after - before).max() > 0.05
+
+
 def test_anisotropic_bar_twists_in_ends_and_bends_in_middle():
     """Fig. 5c. Measures: (1) twist across the middle section (ring at z=+0.6 minus ring at
     z=-0.6) when the top anchor is twisted 90 degrees about the bar axis; (2) rotation angle

@@ -55,6 +55,21 @@ def test_compaction():
     assert used.tolist() == [0, 2, 3] and t.tolist() == [[0, 1, 2]]
 
 
+def test_pose_transforms_cache_follows_object_and_bind_matrices():
+    rng = np.random.default_rng(3)
+    m = np.zeros((6, 4, 4))
+    m[:, :3, :] = rng.normal(size=(6, 3, 4))
+    m[:, 3, 3] = 1
+    pose = am.PoseTransforms()
+    for m_obj in (m[0], m[0], m[5]):  # repeat (cached inverses), then the object moved
+        np.testing.assert_allclose(
+            pose(m_obj, m[1:3], m[3:5]), am.anchor_transforms(m_obj, m[1:3], m[3:5]), atol=1e-12
+        )
+    np.testing.assert_allclose(  # a rebind (new bind matrices) is picked up too
+        pose(m[5], m[1:3], m[2:4]), am.anchor_transforms(m[5], m[1:3], m[2:4]), atol=1e-12
+    )
+
+
 def test_affine_inverse_inverts_and_rejects_zero_scale():
     rng = np.random.default_rng(2)
     m = np.zeros((5, 4, 4))

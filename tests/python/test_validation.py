@@ -108,3 +108,11 @@ def test_core_rejects_bad_input_without_crashing():
     f = np.array([[0, 1, 2]], dtype=np.int32)
     with pytest.raises(ValueError):
         _core.MaterialDeformer(v, f, [[1]], np.ones(1), np.ones(0), None)
+
+
+def test_transform_determinant_matches_lapack():
+    # the validation computes det without LAPACK (see _validate._det3); same values
+    from matdeform._validate import _det3
+
+    a = np.random.default_rng(4).normal(size=(7, 3, 3))
+    np.testing.assert_allclose(_det3(a), np.linalg.det(a), rtol=1e-12, atol=1e-14)
