@@ -127,6 +127,16 @@ def setup_laplacian(obj, sides, ring_rows):
     return empty, time.perf_counter() - t
 
 
+def cpu_ticks():
+    """(steal, total) clock ticks of all CPUs from /proc/stat (Linux), or None."""
+    try:
+        with open("/proc/stat") as f:
+            v = [int(x) for x in f.readline().split()[1:9]]
+        return v[7], sum(v)
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def median_ms(fn, reps, budget_s):
     times = []
     start = time.perf_counter()
@@ -191,6 +201,7 @@ def bench_size(target_faces, reps, budget_s):
     # Empty, so only its own object is re-evaluated; the add-on's handler still runs in the
     # Laplacian cycle and finds nothing to do, as it would in a real scene.
     md_times, lap_times, block_ratios = [], [], []
+    ticks0 = cpu_ticks()
     start = time.perf_counter()
     i = 0
     while len(md_times) < reps or len(lap_times) < max(3, reps // 4):
@@ -216,6 +227,13 @@ def bench_size(target_faces, reps, budget_s):
             break
     cycle_ms = 1000 * statistics.median(md_times)
     lap_ms = 1000 * statistics.median(lap_times)
+    # CPU time the hypervisor gave to other guests while we wanted to run (this VM is shared)
+    ticks1 = cpu_ticks()
+    steal = (
+        100.0 * (ticks1[0] - ticks0[0]) / max(1, ticks1[1] - ticks0[1])
+        if ticks0 and ticks1
+        else float("nan")
+    )
     n_cycle, n_lap = len(md_times), len(lap_times)
     # sanity: the anchor followed (the benchmark must measure a working deformation)
     kb = obj.data.shape_keys.key_blocks["Material Deform"]
@@ -234,6 +252,7 @@ def bench_size(target_faces, reps, budget_s):
         "lap_bind_s": lap_bind,
         "lap_cycle": lap_ms,
         "block_ratio": statistics.median(block_ratios),
+        "steal": steal,
         "n": (n_apply, n_cycle, n_lap, len(block_ratios)),
     }
 
@@ -272,6 +291,8 @@ def main():
     lines.append(
         "samples (apply, full, laplacian, blocks): "
         + ", ".join(f"{r['tris']}: {r['n']}" for r in rows)
+        + "; CPU steal during the full updates: "
+        + ", ".join(f"{r['tris']}: {r['steal']:.0f}%" for r in rows)
     )
     text = "\n".join(lines)
     print(text)

@@ -104,10 +104,10 @@ struct Substitution {
   bool postordered = false;
 
   struct Schedule {
-    int requested = 0;                                   // num_threads() it was made for
-    int threads = 0;                                     // 1: run serially
-    std::vector<std::vector<std::pair<int, int>>> bins;  // per thread: subtree ranges [b, e)
-    std::vector<int> serial;                             // ascending
+    int requested = 0;                      // num_threads() it was made for
+    int threads = 0;                        // 1: run serially
+    std::vector<std::pair<int, int>> jobs;  // subtree row ranges [b, e), heaviest first
+    std::vector<int> serial;                // ascending
   };
   mutable Schedule sched;
   mutable std::vector<double> Y;
@@ -182,8 +182,11 @@ struct Substitution {
   }
 
   // Greedy: keep moving the root of the heaviest subtree to the serial part while that does not
-  // raise the estimated time (serial + max(parallel / threads, heaviest subtree)); then pack the
-  // subtrees onto threads, heaviest first.
+  // raise the estimated time (serial + max(parallel / threads, heaviest subtree)). Then keep
+  // splitting a little further, for at most 3 % more serial work, until there are several
+  // subtrees per thread: they are claimed dynamically, so when a worker is descheduled (this
+  // project's VMs lose 10 % of their CPU time to other guests) the others take over all but the
+  // subtree it holds.
   void make_schedule(int threads) const {
     sched = Schedule();
     sched.requested = threads;
@@ -204,6 +207,8 @@ struct Substitution {
     auto estimate = [&](double s, double p, double heaviest) {
       return s + std::max(p / threads, heaviest);
     };
+    const size_t wanted_jobs = static_cast<size_t>(4 * threads);
+    double extra_budget = -1.0;  // serial work allowed past the greedy optimum, once reached
     while (!heap.empty()) {
       const Item top = heap.top();
       heap.pop();
@@ -212,12 +217,18 @@ struct Substitution {
       for (int q = child_ptr[r]; q < child_ptr[r + 1]; ++q) {
         heaviest = std::max(heaviest, tree_work[child[q]]);
       }
-      const double now = estimate(serial_work, parallel_work, top.first);
-      const double split =
-          estimate(serial_work + own_work[r], parallel_work - own_work[r], heaviest);
-      if (split > now) {
-        heap.push(top);
-        break;
+      if (extra_budget < 0.0) {
+        const double now = estimate(serial_work, parallel_work, top.first);
+        const double split =
+            estimate(serial_work + own_work[r], parallel_work - own_work[r], heaviest);
+        if (split > now) extra_budget = 0.03 * total;
+      }
+      if (extra_budget >= 0.0) {
+        if (heap.size() + 1 >= wanted_jobs || own_work[r] > extra_budget) {
+          heap.push(top);
+          break;
+        }
+        extra_budget -= own_work[r];
       }
       sched.serial.push_back(r);
       serial_work += own_work[r];
@@ -232,16 +243,11 @@ struct Substitution {
       sched.threads = 1;
       return;
     }
-    sched.bins.assign(threads, {});
-    std::vector<double> load(threads, 0.0);
-    while (!heap.empty()) {  // pops heaviest first
+    while (!heap.empty()) {  // pops heaviest first: claimed in this order, an online LPT
       const int r = heap.top().second;
       heap.pop();
-      const int t = static_cast<int>(std::min_element(load.begin(), load.end()) - load.begin());
-      load[t] += tree_work[r];
-      sched.bins[t].emplace_back(first[r], r + 1);
+      sched.jobs.emplace_back(first[r], r + 1);
     }
-    for (auto& bin : sched.bins) std::sort(bin.begin(), bin.end());
     std::sort(sched.serial.begin(), sched.serial.end());
   }
 
@@ -253,21 +259,19 @@ struct Substitution {
       backward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, 0, n);
       return;
     }
-    const int bins = static_cast<int>(sched.bins.size());
-    run_tasks(bins, [&](int t) {
-      for (const auto& r : sched.bins[t]) {
-        forward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, r.first, r.second);
-      }
+    const int jobs = static_cast<int>(sched.jobs.size());
+    run_tasks(jobs, [&](int t) {
+      const auto& r = sched.jobs[t];
+      forward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, r.first, r.second);
     });
     for (int j : sched.serial)
       forward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, j, j + 1);
     for (auto it = sched.serial.rbegin(); it != sched.serial.rend(); ++it) {
       backward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, *it, *it + 1);
     }
-    run_tasks(bins, [&](int t) {
-      for (auto r = sched.bins[t].rbegin(); r != sched.bins[t].rend(); ++r) {
-        backward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, r->first, r->second);
-      }
+    run_tasks(jobs, [&](int t) {
+      const auto& r = sched.jobs[t];
+      backward_rows(rp.data(), ri.data(), rx.data(), dinv.data(), Yd, r.first, r.second);
     });
   }
 
