@@ -26,7 +26,7 @@ int find_root(std::vector<int>& parent, int x) {
 
 // Position of entry e (column-major) of face i's matrix in the grouped layout.
 inline size_t group_index(int i, int e) {
-  return static_cast<size_t>(kGroupStride) * (i / kGroupFaces) + 4 * e + i % kGroupFaces;
+  return static_cast<size_t>(kGroupStride) * (i / kGroupFaces) + kGroupFaces * e + i % kGroupFaces;
 }
 
 // For the groups [gb, ge) (grouped layout, types.hpp): local holds T on entry and T * H^T on
@@ -98,7 +98,7 @@ struct PoissonRepositioner::Impl {
   int num_user_fixed = 0;
   Eigen::SparseMatrix<double, Eigen::RowMajor> K_fp;  // free x fixed_all coupling
   std::unique_ptr<SparseCholesky> chol;
-  // Per free vertex (CSR): where its terms start in `local` (column `local` of a face's T H^T).
+  // Per free vertex (CSR): index into `local` of each of its terms (column l of a face's T H^T).
   std::vector<int> inc_offset, inc_slot;
   // Components solved only up to translation: restore their rest vertex mean afterwards.
   std::vector<int> gauge_comp_of;  // n; -1 when the vertex's component has a fixed vertex
