@@ -1,0 +1,90 @@
+"""Where one live update's time goes inside Blender (companion to bench_blender.py).
+
+Times, on the same tube and anchors as bench_blender.py and with no Laplacian object:
+Blender's re-evaluation after the add-on writes and tags the output shape key, the handler body
+(``session.apply``), and the full live update.
+
+Usage (see docs/performance.md):
+  MD_SYS_PATH=build/addon/legacy/material_deform/_vendor .venv-bpy/bin/python \
+      bench/bench_blender_parts.py [--faces 50000] [--reps 60] [--keep-cpus-awake]
+  MD_SYS_PATH=$PWD/build/addon/legacy/material_deform/_vendor blender -b --factory-startup \
+      --python bench/bench_blender_parts.py -- [--faces 50000]
+"""
+
+import argparse
+import math
+import os
+import statistics
+import sys
+import time
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import bench_blender as bb  # noqa: E402  (also puts MD_SYS_PATH on sys.path)
+import bpy  # noqa: E402
+
+
+def median_ms(fn, reps):
+    times = []
+    for i in range(reps):
+        t = time.perf_counter()
+        fn(i)
+        times.append(time.perf_counter() - t)
+    return 1000 * statistics.median(times)
+
+
+def main():
+    argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--faces", type=int, default=50000)
+    ap.add_argument("--reps", type=int, default=60)
+    ap.add_argument("--keep-cpus-awake", action="store_true")
+    args = ap.parse_args(argv)
+
+    import addon_utils
+
+    addon_utils.enable("material_deform", default_set=True)
+    from material_deform import bridge, session
+
+    spinners = bb.keep_cpus_awake() if args.keep_cpus_awake else []
+    try:
+        bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+        scene, vl = bpy.context.scene, bpy.context.view_layer
+        sides = max(16, int(round(math.sqrt(args.faces / 2 / 2.5))))
+        rings = max(3, int(round(args.faces / 2 / sides)) + 1)
+        obj = bb.tube("MD", rings, sides)
+        empty, _ = bb.setup_md(obj, sides, max(1, (rings - 1) // 50))
+        kb = bridge.output_key(obj)
+        x = session.compute(obj, scene, None)
+        s = obj.material_deform
+
+        s.live = False
+        vl.update()
+        reeval = median_ms(
+            lambda i: (bridge.write_key(obj, kb, x + 0.001 * (i % 7)), vl.update()), args.reps
+        )
+
+        def handler_step(i):
+            # matrix_world directly: a location change only reaches it on evaluation
+            m = empty.matrix_world.copy()
+            m.translation.x = 0.3 * math.sin(0.7 * (i + 1))
+            empty.matrix_world = m
+            session.apply(obj, scene, None, force=True)
+
+        handler = median_ms(handler_step, args.reps)
+        s.live = True
+        vl.update()
+        full = median_ms(lambda i: (bb.wiggle(empty, i), vl.update(), vl.update()), args.reps)
+    finally:
+        for p in spinners:
+            p.kill()
+    print(
+        f"Blender {bpy.app.version_string}, {2 * len(obj.data.polygons)} triangles, "
+        f"{len(obj.data.vertices)} vertices" + (", CPUs kept awake" if spinners else "")
+    )
+    print(f"re-evaluation after the shape-key write (ms): {reeval:.2f}")
+    print(f"handler body, session.apply (ms):           {handler:.2f}")
+    print(f"full live update (ms):                       {full:.2f}")
+
+
+if __name__ == "__main__":
+    main()
