@@ -17,7 +17,7 @@
 namespace matdeform {
 
 namespace {
-using Col3 = Eigen::Matrix<double, Eigen::Dynamic, 3>;  // column-major (rows,3) for CHOLMOD
+using Col3 = Eigen::Matrix<double, Eigen::Dynamic, 3>;  // column-major (rows,3)
 
 int find_root(std::vector<int>& parent, int x) {
   while (parent[x] != x) x = parent[x] = parent[parent[x]];
@@ -53,33 +53,44 @@ MD_TARGET_AVX2 void condense_avx2(const double* H, double* local, int gb, int ge
   condense_body(H, local, gb, ge);
 }
 
-// rhs row f = sum of the terms of free vertex f, for f in [b, e). A term is a column of a face's
-// T * H^T: three doubles 4 apart in the grouped layout.
-MD_ALWAYS_INLINE void gather_body(const int* offset, const int* slot, const double* local,
-                                  Col3* rhs, int b, int e) {
-  double* rx = rhs->col(0).data();
-  double* ry = rhs->col(1).data();
-  double* rz = rhs->col(2).data();
-  for (int f = b; f < e; ++f) {
+// Right-hand side in the solver's permuted 4-wide layout, rows [b, e): row i belongs to free
+// vertex f = row_free[i] and is the sum of f's terms (a term is a column of a face's T * H^T:
+// three doubles 4 apart in the grouped layout) minus its coupling to the fixed vertices,
+// K_fp.row(f) * fixed_pos (K_fp in CSR: kp, ki, kx; fixed_pos column-major with nfix rows).
+struct GatherArgs {
+  const int *offset, *slot, *row_free;
+  const double* local;
+  const int *kp, *ki;
+  const double *kx, *fixed_pos;
+  int nfix;
+  double* y4;
+};
+MD_ALWAYS_INLINE void gather_body(const GatherArgs& a, int b, int e) {
+  for (int i = b; i < e; ++i) {
+    const int f = a.row_free[i];
     double x = 0.0, y = 0.0, z = 0.0;
-    for (int s = offset[f]; s < offset[f + 1]; ++s) {
-      const double* t = local + slot[s];
+    for (int s = a.offset[f]; s < a.offset[f + 1]; ++s) {
+      const double* t = a.local + a.slot[s];
       x += t[0];
       y += t[4];
       z += t[8];
     }
-    rx[f] = x;
-    ry[f] = y;
-    rz[f] = z;
+    for (int q = a.kp[f]; q < a.kp[f + 1]; ++q) {
+      const double k = a.kx[q];
+      const double* p = a.fixed_pos + a.ki[q];
+      x -= k * p[0];
+      y -= k * p[a.nfix];
+      z -= k * p[2 * a.nfix];
+    }
+    double* r = a.y4 + 4 * static_cast<size_t>(i);
+    r[0] = x;
+    r[1] = y;
+    r[2] = z;
+    r[3] = 0.0;
   }
 }
-void gather_base(const int* offset, const int* slot, const double* local, Col3* rhs, int b, int e) {
-  gather_body(offset, slot, local, rhs, b, e);
-}
-MD_TARGET_AVX2 void gather_avx2(const int* offset, const int* slot, const double* local, Col3* rhs,
-                                int b, int e) {
-  gather_body(offset, slot, local, rhs, b, e);
-}
+void gather_base(const GatherArgs& a, int b, int e) { gather_body(a, b, e); }
+MD_TARGET_AVX2 void gather_avx2(const GatherArgs& a, int b, int e) { gather_body(a, b, e); }
 }  // namespace
 
 struct PoissonRepositioner::Impl {
@@ -105,8 +116,12 @@ struct PoissonRepositioner::Impl {
   std::vector<Eigen::Vector3d> gauge_rest_mean;
   std::vector<double> gauge_count;
 
+  // The solver's row order: permuted row i is free vertex row_free[i], mesh vertex row_vertex[i].
+  std::vector<int> row_free, row_vertex;
+
   mutable std::vector<double> local;  // grouped layout, kGroupStride per group
-  mutable Col3 rhs, sol, fixed_pos;
+  mutable std::vector<double> y4;     // right-hand side, then solution, (nf,4) permuted rows
+  mutable Col3 fixed_pos;
 };
 
 PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& faces,
@@ -245,6 +260,7 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   Kff.setFromTriplets(kff.begin(), kff.end());
   d.K_fp.resize(nf, static_cast<Eigen::Index>(d.fixed_all.size()));
   d.K_fp.setFromTriplets(kfp.begin(), kfp.end());
+  d.K_fp.makeCompressed();  // solve() reads its CSR arrays
   d.chol =
       std::make_unique<SparseCholesky>(Kff, SparseCholesky::Reuse::PerPose);  // solved per pose
 
@@ -269,8 +285,10 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   }
 
   d.local.assign(d.H.size(), 0.0);
-  d.rhs.resize(nf, 3);
-  d.sol.resize(nf, 3);
+  d.row_free = d.chol->permutation();
+  d.row_vertex.resize(d.row_free.size());
+  for (size_t i = 0; i < d.row_free.size(); ++i) d.row_vertex[i] = d.free_verts[d.row_free[i]];
+  d.y4.assign(4 * static_cast<size_t>(nf), 0.0);
   d.fixed_pos.resize(static_cast<Eigen::Index>(d.fixed_all.size()), 3);
   for (size_t s = d.num_user_fixed; s < d.fixed_all.size(); ++s) {
     d.fixed_pos.row(static_cast<Eigen::Index>(s)) = vertices.row(d.fixed_all[s]);
@@ -311,16 +329,21 @@ void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fix
     targets(gb, ge, &d.local[static_cast<size_t>(kGroupStride) * gb]);
     (avx2 ? condense_avx2 : condense_base)(d.H.data(), d.local.data(), gb, ge);
   });
-  parallel_ranges(nf, 4096, 8, [&](int b, int e) {
-    (avx2 ? gather_avx2 : gather_base)(d.inc_offset.data(), d.inc_slot.data(), d.local.data(),
-                                       &d.rhs, b, e);
-  });
   if (d.num_user_fixed > 0) d.fixed_pos.topRows(d.num_user_fixed) = fixed_positions;
-  if (d.K_fp.cols() > 0) d.rhs.noalias() -= d.K_fp * d.fixed_pos;
-  d.chol->solve(d.rhs.data(), d.sol.data(), 3);
+  const GatherArgs args{
+      d.inc_offset.data(), d.inc_slot.data(),      d.row_free.data(),
+      d.local.data(),      d.K_fp.outerIndexPtr(), d.K_fp.innerIndexPtr(),
+      d.K_fp.valuePtr(),   d.fixed_pos.data(),     static_cast<int>(d.fixed_pos.rows()),
+      d.y4.data()};
+  parallel_ranges(nf, 4096, 8,
+                  [&](int b, int e) { (avx2 ? gather_avx2 : gather_base)(args, b, e); });
+  d.chol->solve_permuted4(d.y4.data());
 
   out->resize(d.n, 3);
-  for (int f = 0; f < nf; ++f) out->row(d.free_verts[f]) = d.sol.row(f);
+  for (int i = 0; i < nf; ++i) {
+    const double* r = &d.y4[4 * static_cast<size_t>(i)];
+    out->row(d.row_vertex[i]) << r[0], r[1], r[2];
+  }
   for (size_t s = 0; s < d.fixed_all.size(); ++s) {
     out->row(d.fixed_all[s]) = d.fixed_pos.row(static_cast<Eigen::Index>(s));
   }

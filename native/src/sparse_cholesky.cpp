@@ -387,6 +387,19 @@ void SparseCholesky::solve(const double* B, double* X, int nrhs) const {
   std::memcpy(X, impl_->X->x, sizeof(double) * Bd.nzmax);
 }
 
+const std::vector<int>& SparseCholesky::permutation() const {
+  static const std::vector<int> none;
+  if (n_ == 0) return none;
+  if (!impl_->sub) throw std::logic_error("permutation(): not a PerPose factor");
+  return impl_->sub->perm;
+}
+
+void SparseCholesky::solve_permuted4(double* Y) const {
+  if (n_ == 0) return;
+  if (!impl_->sub) throw std::logic_error("solve_permuted4(): not a PerPose factor");
+  impl_->sub->run(Y);
+}
+
 int SparseCholesky::substitution_threads() const {
   return impl_->sub ? impl_->sub->sched.threads : 0;
 }

@@ -3,6 +3,7 @@
 
 #include <Eigen/SparseCore>
 #include <memory>
+#include <vector>
 
 namespace matdeform {
 
@@ -25,6 +26,13 @@ class SparseCholesky {
   // threads. Not thread-safe.
   void solve(const double* B, double* X, int nrhs) const;
   int rows() const { return n_; }
+
+  // PerPose factors only: the layout the substitution works in, for callers that assemble their
+  // right-hand sides in it directly. Row i of the permuted system is row permutation()[i] of A;
+  // solve_permuted4 solves in place on (rows(), 4) row-major data in that row order: up to three
+  // right-hand sides in columns 0-2, column 3 is scratch.
+  const std::vector<int>& permutation() const;
+  void solve_permuted4(double* Y) const;
   // Threads the last PerPose solve ran its substitution on (1 = serial; 0 for Once factors).
   int substitution_threads() const;
 
