@@ -171,11 +171,29 @@ def wiggle(empty, i):
     empty.location.y = 0.2 * math.cos(0.9 * (i + 1))
 
 
+def tube_dims(target_faces):
+    """(rings, sides) of a quad tube with about target_faces triangles, length/diameter ~4."""
+    sides = max(16, int(round(math.sqrt(target_faces / 2 / 2.5))))
+    return max(3, int(round(target_faces / 2 / sides)) + 1), sides
+
+
+def timed_block(cycle, count, i):
+    """Run cycle(i), cycle(i + 1), ... count times; the first is a warm-up. Returns the other
+    times (s) and the next i."""
+    times = []
+    for j in range(count):
+        t0 = time.perf_counter()
+        cycle(i)
+        if j:
+            times.append(time.perf_counter() - t0)
+        i += 1
+    return times, i
+
+
 def bench_size(target_faces, reps, budget_s):
     from material_deform import session
 
-    sides = max(16, int(round(math.sqrt(target_faces / 2 / 2.5))))
-    rings = max(3, int(round(target_faces / 2 / sides)) + 1)
+    rings, sides = tube_dims(target_faces)
     ring_rows = max(1, (rings - 1) // 50)
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
@@ -222,19 +240,8 @@ def bench_size(target_faces, reps, budget_s):
     start = time.perf_counter()
     i = 0
     while len(md_times) < reps or len(lap_times) < max(3, reps // 4):
-        md_block, lap_block = [], []
-        for j in range(11):
-            t0 = time.perf_counter()
-            md_cycle(i)
-            if j:
-                md_block.append(time.perf_counter() - t0)
-            i += 1
-        for j in range(3):
-            t0 = time.perf_counter()
-            lap_cycle(i)
-            if j:
-                lap_block.append(time.perf_counter() - t0)
-            i += 1
+        md_block, i = timed_block(md_cycle, 11, i)
+        lap_block, i = timed_block(lap_cycle, 3, i)
         md_times += md_block
         lap_times += lap_block
         # The ratio within one block (about a second) compares both methods at the same machine

@@ -49,8 +49,7 @@ def main():
     try:
         bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
         scene, vl = bpy.context.scene, bpy.context.view_layer
-        sides = max(16, int(round(math.sqrt(args.faces / 2 / 2.5))))
-        rings = max(3, int(round(args.faces / 2 / sides)) + 1)
+        rings, sides = bb.tube_dims(args.faces)
         obj = bb.tube("MD", rings, sides)
         empty, _ = bb.setup_md(obj, sides, max(1, (rings - 1) // 50))
         kb = bridge.output_key(obj)

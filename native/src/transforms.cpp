@@ -57,6 +57,13 @@ constexpr RodriguesSeries make_series() {
 }
 constexpr RodriguesSeries kSeries = make_series();
 
+// sin(t)/t and (1 - cos t)/t^2 beyond the series range (only large anisotropic blends get there).
+inline void trig_coefficients(double t2, double* a, double* b) {
+  const double t = std::sqrt(t2), h = std::sin(0.5 * t);
+  *a = std::sin(t) / t;
+  *b = 2.0 * h * h / t2;
+}
+
 // R = I + a K + b K^2 for K = [omega]x.
 MD_ALWAYS_INLINE void rodrigues(double x, double y, double z, double scale, Eigen::Matrix3d* R) {
   const double t2 = x * x + y * y + z * z;
@@ -68,10 +75,8 @@ MD_ALWAYS_INLINE void rodrigues(double x, double y, double z, double scale, Eige
       a = a * t2 + kSeries.a[k];
       b = b * t2 + kSeries.b[k];
     }
-  } else {  // large anisotropic blends only
-    const double t = std::sqrt(t2);
-    a = std::sin(t) / t;
-    b = 2.0 * std::sin(0.5 * t) * std::sin(0.5 * t) / t2;
+  } else {
+    trig_coefficients(t2, &a, &b);
   }
   a *= scale;
   b *= scale;
@@ -204,9 +209,10 @@ MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, co
     Vec4d sc = {1.0, 1.0, 1.0, 1.0};
     for (int l = 0; l < kGroupFaces; ++l) {
       if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
-        const double t = std::sqrt(t2[l]);
-        A[l] = std::sin(t) / t;
-        B[l] = 2.0 * std::sin(0.5 * t) * std::sin(0.5 * t) / t2[l];
+        double a, b;
+        trig_coefficients(t2[l], &a, &b);
+        A[l] = a;
+        B[l] = b;
       }
       if (scaled) sc[l] = std::exp(s[l]);
     }

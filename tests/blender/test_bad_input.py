@@ -60,13 +60,18 @@ def test_add_anchor_without_selection():
     assert len(obj.vertex_groups) == 0 and len(obj.material_deform.anchors) == 0
 
 
-def test_deleted_empty_before_and_after_bind():
+def _bound_and_moved():
+    """A bound tube whose top anchor moved once: (object, top anchor, output after the move)."""
     obj = tube()
     top, _ = two_end_anchors(obj)
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
     top.empty.location.x += 0.5
     update()
-    result = output(obj).copy()
+    return obj, top, output(obj).copy()
+
+
+def test_deleted_empty_before_and_after_bind():
+    obj, top, result = _bound_and_moved()
     bpy.data.objects.remove(top.empty)
     update()
     np.testing.assert_array_equal(output(obj), result)  # no garbage written
@@ -78,12 +83,7 @@ def test_deleted_empty_before_and_after_bind():
 
 
 def test_empty_scaled_to_zero_after_bind():
-    obj = tube()
-    top, _ = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
-    top.empty.location.x += 0.5
-    update()
-    result = output(obj).copy()
+    obj, top, result = _bound_and_moved()
     top.empty.scale = (1.0, 0.0, 1.0)
     update()
     np.testing.assert_array_equal(output(obj), result)  # the live update wrote nothing
