@@ -4,7 +4,8 @@
 #                                           Install), native core vendored in _vendor/
 #   dist/material_deform-<ver>.zip          Blender 4.2+ extension (manifest + matdeform wheel),
 #                                           built and validated with Blender's own extension tool
-# Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_WHEEL (use this
+# Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_BLENDER_PYTHON (3.11),
+# BLENDER42 (a Blender >= 4.2 executable for the extension tool), MD_WHEEL (use this
 # prebuilt matdeform wheel), MD_AUDITWHEEL=1 (bundle libcholmod & co. via auditwheel repair).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -13,7 +14,11 @@ PY="${PYTHON:-}"
 if [[ -z "$PY" ]]; then
   if [[ -x .venv/bin/python ]]; then PY=.venv/bin/python; else PY=python3; fi
 fi
-"$PY" -c 'import sys; assert sys.version_info[:2] == (3, 11), "need CPython 3.11 (Blender ABI)"'
+# The native core is built for the Python of the target Blender: 3.11 for official builds and PyPI
+# bpy (3.4 to 5.0), 3.13 for Debian 13's Blender 4.3 (MD_BLENDER_PYTHON=3.13).
+BLENDER_PY="${MD_BLENDER_PYTHON:-3.11}"
+"$PY" -c "import sys; v = '%d.%d' % sys.version_info[:2]; assert v == '$BLENDER_PY', \
+  'need CPython $BLENDER_PY (the Blender ABI), got ' + v"
 
 BUILD=build/addon
 rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist

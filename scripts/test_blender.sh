@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Run the add-on test suite inside Debian's Blender (3.4) and with the PyPI bpy module (4.5 LTS,
-# plus 5.0 if MD_BPY5=1), installing whatever is missing. Exit status: non-zero if any run fails.
+# Run the add-on test suite inside Debian's Blender (3.4), with the PyPI bpy module (4.5 LTS, plus
+# 5.0 if MD_BPY5=1) and inside Debian 13's Blender 4.3 in a chroot (as root; MD_DEBIAN13=0 skips
+# it), installing whatever is missing. Exit status: non-zero if any run fails.
 #   scripts/test_blender.sh [extra pytest args]
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -56,6 +57,10 @@ run() {  # run LABEL CMD...
 run "Blender $(blender --version 2>/dev/null | head -n1 | cut -d' ' -f2) (Debian)" \
   blender -b --factory-startup --python-exit-code 1 --python tests/blender/run.py -- -q "$@"
 run "bpy $BPY_VERSION (PyPI)" .venv-bpy/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+# A real Blender >= 4.2 executable: Debian 13's 4.3 in a chroot (also runs the extension tool)
+if [[ "${MD_DEBIAN13:-1}" == 1 ]]; then
+  run "Blender 4.3 (Debian 13 chroot)" bash scripts/test_blender_debian13.sh "$@"
+fi
 if [[ "${MD_BPY5:-0}" == 1 ]]; then
   venv .venv-bpy5 5.0.1
   run "bpy 5.0.1 (PyPI)" .venv-bpy5/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"

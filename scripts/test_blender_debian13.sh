@@ -1,0 +1,71 @@
+#!/usr/bin/env bash
+# The add-on in a real Blender >= 4.2 executable: Debian 13's Blender 4.3, in a debootstrap chroot
+# (Debian packages only, cached in .cache/debian13, about 2.3 GB). Inside it:
+#   1. build the core for its Python 3.13 and both zips, the extension built and validated by
+#      `blender --command extension build` / `extension validate` (scripts/build_addon.sh);
+#   2. `extension validate` the zip that ships (dist/, Python 3.11 wheel) as well;
+#   3. run the Blender test suite (tests/blender), including installing both zips.
+# Needs root (debootstrap, chroot). Usage: scripts/test_blender_debian13.sh [pytest args]
+set -euo pipefail
+ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$ROOT"
+CH="${MD_DEBIAN13_DIR:-$ROOT/.cache/debian13}"
+MIRROR="${MD_DEBIAN_MIRROR:-http://deb.debian.org/debian}"
+PKGS=(blender python3-numpy python3-pytest libegl1 libegl-mesa0 libgl1-mesa-dri
+  gcc g++ libc6-dev cmake ninja-build python3-dev python3-pip python3-pybind11 pybind11-dev
+  python3-scikit-build-core libeigen3-dev libsuitesparse-dev)
+
+if [[ "$(id -u)" -ne 0 ]]; then
+  echo "SKIPPED: the Debian 13 chroot needs root" >&2
+  exit 0
+fi
+# A clean environment inside: the host's PIP_*/PYTHON* settings mean nothing there.
+in_chroot() { env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root LANG=C.UTF-8 chroot "$CH" "$@"; }
+
+if [[ "$(cat "$CH/.md-packages" 2>/dev/null)" != "${PKGS[*]}" ]]; then
+  if [[ ! -x "$CH/usr/bin/apt-get" ]]; then
+    command -v debootstrap >/dev/null || {
+      apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq debootstrap
+    } >/dev/null
+    echo "[debian13] debootstrap trixie into $CH"
+    rm -rf "$CH" && mkdir -p "$CH"
+    debootstrap --variant=minbase trixie "$CH" "$MIRROR" >"$CH.debootstrap.log" 2>&1 \
+      || { tail -20 "$CH.debootstrap.log"; exit 2; }
+  fi
+  echo "[debian13] apt-get install ${PKGS[*]}"
+  in_chroot apt-get update -qq
+  in_chroot env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+    "${PKGS[@]}" >"$CH.apt.log" 2>&1 || { tail -20 "$CH.apt.log"; exit 2; }
+  echo "${PKGS[*]}" >"$CH/.md-packages"
+fi
+
+# The working tree (tracked and new files, as they are now) into /proj; /proj/build is kept so
+# the native build is incremental.
+mkdir -p "$CH/proj"
+rm -rf "$CH/proj/dist" "$CH/proj/addon" "$CH/proj/tests" "$CH/proj/src"
+git ls-files -co --exclude-standard -z | while IFS= read -r -d '' f; do
+  [[ -e "$f" ]] && printf '%s\0' "$f"
+done | tar --null -T - -cf - | tar -xf - -C "$CH/proj"
+mkdir -p "$CH/proj/shipped"
+cp dist/material_deform-*.zip "$CH/proj/shipped/" 2>/dev/null || true
+
+echo "[debian13] $(in_chroot blender --version 2>/dev/null | head -n1): build_addon.sh"
+in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 BLENDER42=/usr/bin/blender \
+  bash scripts/build_addon.sh' >"$CH/proj/build_addon.log" 2>&1 \
+  || { cat "$CH/proj/build_addon.log"; exit 2; }
+grep -E "^(created|building|extension|legacy)|Success|ERROR|FATAL" "$CH/proj/build_addon.log" || true
+
+shopt -s nullglob
+for z in "$CH"/proj/shipped/material_deform-*[0-9].zip; do
+  echo "[debian13] extension validate shipped/${z##*/}"
+  rc=0
+  out="$(in_chroot blender --factory-startup --command extension validate \
+    "/proj/shipped/${z##*/}" 2>&1)" || rc=$?
+  grep -v "could not get a list of mounted" <<<"$out" || true
+  [[ $rc -eq 0 ]] || { echo "extension validate failed on ${z##*/}" >&2; exit 1; }
+done
+
+# The suite, with the core built in step 1 (the install tests take the zips in /proj/dist).
+in_chroot env MD_TEST_SYS_PATH=/proj/build/addon/legacy/material_deform/_vendor sh -c \
+  'cd /proj && exec blender -b --factory-startup --python-exit-code 1 --python tests/blender/run.py -- "$@"' \
+  sh -q "$@"
