@@ -118,9 +118,9 @@ struct PoissonRepositioner::Impl {
   std::vector<Eigen::Vector3d> gauge_rest_mean;
   std::vector<double> gauge_count;
 
-  // The solver's row order: permuted row i is free vertex row_free[i], mesh vertex row_vertex[i];
-  // free vertex f is row free_row[f].
-  std::vector<int> row_free, row_vertex, free_row;
+  // The solver's row order: permuted row i is free vertex row_free[i]; free vertex f is row
+  // free_row[f].
+  std::vector<int> row_free, free_row;
 
   mutable std::vector<double> local;  // grouped layout, kGroupStride per group
   mutable std::vector<double> y4;     // right-hand side, then solution, (nf,4) permuted rows
@@ -289,12 +289,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
 
   d.local.assign(d.H.size(), 0.0);
   d.row_free = d.chol->permutation();
-  d.row_vertex.resize(d.row_free.size());
   d.free_row.resize(d.row_free.size());
-  for (size_t i = 0; i < d.row_free.size(); ++i) {
-    d.row_vertex[i] = d.free_verts[d.row_free[i]];
-    d.free_row[d.row_free[i]] = static_cast<int>(i);
-  }
+  for (size_t i = 0; i < d.row_free.size(); ++i) d.free_row[d.row_free[i]] = static_cast<int>(i);
   d.y4.assign(4 * static_cast<size_t>(nf), 0.0);
   d.fixed_pos.resize(static_cast<Eigen::Index>(d.fixed_all.size()), 3);
   for (size_t s = d.num_user_fixed; s < d.fixed_all.size(); ++s) {
@@ -347,9 +343,9 @@ void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fix
   d.chol->solve_permuted4(d.y4.data());
 
   out->resize(d.n, 3);
-  for (int i = 0; i < nf; ++i) {
-    const double* r = &d.y4[4 * static_cast<size_t>(i)];
-    out->row(d.row_vertex[i]) << r[0], r[1], r[2];
+  for (int f = 0; f < nf; ++f) {  // vertex order: sequential writes, reads from cached rows
+    const double* r = &d.y4[4 * static_cast<size_t>(d.free_row[f])];
+    out->row(d.free_verts[f]) << r[0], r[1], r[2];
   }
   for (size_t s = 0; s < d.fixed_all.size(); ++s) {
     out->row(d.fixed_all[s]) = d.fixed_pos.row(static_cast<Eigen::Index>(s));

@@ -3,6 +3,8 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
+#include <cstring>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -62,6 +64,48 @@ inline void trig_coefficients(double t2, double* a, double* b) {
   const double t = std::sqrt(t2), h = std::sin(0.5 * t);
   *a = std::sin(t) / t;
   *b = 2.0 * h * h / t2;
+}
+
+// e^s for four lanes without a libm call per lane (the blended log-scale of every face is
+// exponentiated; it is nonzero whenever an anchor's scale is not exactly 1, round-off included):
+// e^s = 2^n e^r with n = round(s / ln 2), r = s - n ln 2 in two parts (Cody-Waite, n ln2_hi is
+// exact), |r| <= 0.35, and e^r by 15 Taylor terms (tail below 1e-18). Lanes beyond |s| > 700
+// (outside double's exponent range for 2^n) fall back to std::exp.
+constexpr int kExpTerms = 15;
+struct ExpSeries {
+  double c[kExpTerms];
+};
+constexpr ExpSeries make_exp_series() {
+  ExpSeries e{};
+  double f = 1.0;
+  for (int k = 0; k < kExpTerms; ++k) {
+    if (k > 0) f *= k;
+    e.c[k] = 1.0 / f;
+  }
+  return e;
+}
+constexpr ExpSeries kExp = make_exp_series();
+MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
+  constexpr double kInvLn2 = 1.44269504088896338700e+00, kLn2Hi = 6.93147180369123816490e-01,
+                   kLn2Lo = 1.90821492927058770002e-10;
+  Vec4d n, r;
+  for (int l = 0; l < 4; ++l) {
+    n[l] = std::nearbyint(s[l] * kInvLn2);
+    r[l] = (s[l] - n[l] * kLn2Hi) - n[l] * kLn2Lo;
+  }
+  Vec4d p = r * kExp.c[kExpTerms - 1] + kExp.c[kExpTerms - 2];
+  for (int k = kExpTerms - 3; k >= 0; --k) p = p * r + kExp.c[k];
+  for (int l = 0; l < 4; ++l) {
+    if (std::abs(s[l]) <= 700.0) {
+      const uint64_t bits = static_cast<uint64_t>(static_cast<int64_t>(n[l]) + 1023) << 52;
+      double two_n;
+      std::memcpy(&two_n, &bits, sizeof two_n);
+      p[l] *= two_n;
+    } else {
+      p[l] = std::exp(s[l]);
+    }
+  }
+  *out = p;
 }
 
 // R = I + a K + b K^2 for K = [omega]x.
@@ -206,7 +250,6 @@ MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, co
       A = A * t2 + kSeries.a[j];
       B = B * t2 + kSeries.b[j];
     }
-    Vec4d sc = {1.0, 1.0, 1.0, 1.0};
     for (int l = 0; l < kGroupFaces; ++l) {
       if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
         double a, b;
@@ -214,8 +257,9 @@ MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, co
         A[l] = a;
         B[l] = b;
       }
-      if (scaled) sc[l] = std::exp(s[l]);
     }
+    Vec4d sc = {1.0, 1.0, 1.0, 1.0};
+    if (scaled) exp4(s, &sc);
     A *= sc;
     B *= sc;
     const Vec4d xx = x * x, yy = y * y, zz = z * z, xy = x * y, xz = x * z, yz = y * z;

@@ -133,6 +133,37 @@ TEST(Transforms, BlendAllFastPathMatchesGeneralPath) {
   EXPECT_LT((out[3] - Eigen::Matrix3d::Identity()).norm(), 1e-15);  // zero weights: identity
 }
 
+TEST(Transforms, GroupedBlendMatchesReferenceOverWideScaleRange) {
+  // blend_groups (the per-pose kernel: Rodrigues series and a 4-wide exp of the blended
+  // log-scale) against blend_logs (matrix exponential) for scales from 1e-6 to 1e6, so that
+  // the exp's range reduction is exercised well away from n = 0.
+  const Eigen::Vector3d ax = Eigen::Vector3d(0.3, -1, 0.4).normalized();
+  std::vector<TransformLog> logs = {
+      transform_log(1e-6 * Eigen::AngleAxisd(0.4, ax).toRotationMatrix()),
+      transform_log(1e6 * Eigen::AngleAxisd(-1.1, Eigen::Vector3d::UnitZ()).toRotationMatrix()),
+      transform_log(0.7 * Eigen::Matrix3d::Identity()),
+      transform_log(Eigen::AngleAxisd(2.5, Eigen::Vector3d::UnitY()).toRotationMatrix())};
+  const int m = 203;  // not a multiple of the group size: the last group is padded
+  RowMatrix W(m, 4);
+  for (int i = 0; i < m; ++i) {
+    for (int a = 0; a < 4; ++a) W(i, a) = 1.0 + std::sin(0.37 * i * (a + 1) + a);
+    W.row(i) /= W.row(i).sum();
+  }
+  const int groups = (m + kGroupFaces - 1) / kGroupFaces;
+  std::vector<double> out(static_cast<size_t>(kGroupStride) * groups);
+  blend_groups(logs, W, 0, groups, out.data());
+  double worst = 0.0;
+  for (int i = 0; i < m; ++i) {
+    const Eigen::Matrix3d ref = blend_logs(logs, W.row(i).data());
+    Eigen::Matrix3d got;
+    for (int e = 0; e < 9; ++e) {
+      got.data()[e] = out[kGroupStride * (i / kGroupFaces) + kGroupFaces * e + i % kGroupFaces];
+    }
+    worst = std::max(worst, (got - ref).norm() / ref.norm());
+  }
+  EXPECT_LT(worst, 1e-13);
+}
+
 TEST(Transforms, AnisotropicBlendWithEqualWeightsIsIsotropic) {
   std::vector<TransformLog> logs = {
       transform_log(
