@@ -163,15 +163,21 @@ def write_color_attribute_vertex_rgb(mesh, name, rgb) -> None:
     mesh.update()
 
 
-def write_float_attribute(mesh, name, domain, values) -> None:
+def _write_attribute(mesh, name, domain, data_type, field, values) -> None:
+    """(Re)create attribute ``name`` with this domain and type if it differs, then bulk-write."""
     attr = mesh.attributes.get(name)
-    if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT"):
+    if attr is not None and (attr.domain != domain or attr.data_type != data_type):
         mesh.attributes.remove(attr)
         attr = None
     if attr is None:
-        attr = mesh.attributes.new(name, "FLOAT", domain)
-    attr.data.foreach_set("value", np.asarray(values, dtype=np.float32))
+        attr = mesh.attributes.new(name, data_type, domain)
+    attr.data.foreach_set(field, np.asarray(values, dtype=np.float32).ravel())
     mesh.update()
+
+
+def write_float_attribute(mesh, name, domain, values) -> None:
+    """values: (n,) for the n elements of ``domain``."""
+    _write_attribute(mesh, name, domain, "FLOAT", "value", values)
 
 
 def read_float_attribute(mesh, name, domain, n):
@@ -182,14 +188,8 @@ def read_float_attribute(mesh, name, domain, n):
 
 
 def write_vector_attribute(mesh, name, domain, values) -> None:
-    attr = mesh.attributes.get(name)
-    if attr is not None and (attr.domain != domain or attr.data_type != "FLOAT_VECTOR"):
-        mesh.attributes.remove(attr)
-        attr = None
-    if attr is None:
-        attr = mesh.attributes.new(name, "FLOAT_VECTOR", domain)
-    attr.data.foreach_set("vector", np.asarray(values, dtype=np.float32).ravel())
-    mesh.update()
+    """values: (n,3) for the n elements of ``domain``."""
+    _write_attribute(mesh, name, domain, "FLOAT_VECTOR", "vector", values)
 
 
 def read_vector_attribute(mesh, name, domain, n):

@@ -17,11 +17,24 @@ def _mesh_object(context):
 
 
 class _MeshOperator:
+    """Base of every operator: ``run(context, obj)`` does the work and raises BindError for
+    anything the user has to fix, which is reported as an error and cancels the operator."""
+
     bl_options = {"REGISTER", "UNDO"}
 
     @classmethod
     def poll(cls, context):
         return _mesh_object(context) is not None
+
+    def execute(self, context):
+        try:
+            return self.run(context, _mesh_object(context))
+        except BindError as exc:
+            self.report({"ERROR"}, str(exc))
+            return {"CANCELLED"}
+
+    def run(self, context, obj):
+        raise NotImplementedError
 
 
 class _Progress:
@@ -52,15 +65,10 @@ class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Oper
     bl_idname = "mesh.material_deform_stiffness_from_paint"
     bl_label = "Stiffness from Paint"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
-        try:
-            with bridge.object_mode(context, obj):
-                _paint, psi, _phi = session.stiffness_from_paint(obj)
-                reason = session.full_check(obj, context.scene)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+    def run(self, context, obj):
+        with bridge.object_mode(context, obj):
+            _paint, psi, _phi = session.stiffness_from_paint(obj)
+            reason = session.full_check(obj, context.scene)
         msg = f"Stiffness: {len(psi)} faces, range {psi.min():.3g} .. {psi.max():.3g}"
         self.report({"WARNING"} if reason else {"INFO"}, reason or msg)
         return {"FINISHED"}
@@ -74,17 +82,12 @@ class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator)
     bl_idname = "mesh.material_deform_learn_stiffness"
     bl_label = "Learn from Shape Keys"
 
-    def execute(self, context):
+    def run(self, context, obj):
         from . import material_setup
 
-        obj = _mesh_object(context)
-        try:
-            with bridge.object_mode(context, obj), _Progress(context) as progress:
-                res = material_setup.learn_from_shape_keys(obj, progress)
-                reason = session.full_check(obj, context.scene)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        with bridge.object_mode(context, obj), _Progress(context) as progress:
+            res = material_setup.learn_from_shape_keys(obj, progress)
+            reason = session.full_check(obj, context.scene)
         msg = (
             f"Learned from {len(res['keys'])} shape key(s); bending {res['phi'].min():.3g} .. "
             f"{res['phi'].max():.3g}; paint written to: {', '.join(res['groups'].values())}"
@@ -99,14 +102,9 @@ class MESH_OT_material_deform_show_stiffness(_MeshOperator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_show_stiffness"
     bl_label = "Show Stiffness"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
-        try:
-            with bridge.object_mode(context, obj):
-                session.show_stiffness(obj)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+    def run(self, context, obj):
+        with bridge.object_mode(context, obj):
+            session.show_stiffness(obj)
         bridge.show_attribute_shading(context)
         return {"FINISHED"}
 
@@ -124,15 +122,13 @@ class MESH_OT_material_deform_add_anchor(_MeshOperator, bpy.types.Operator):
         default="POSITION",
     )
 
-    def execute(self, context):
-        obj = _mesh_object(context)
+    def run(self, context, obj):
         s = obj.material_deform
         with bridge.object_mode(context, obj):
             mesh = obj.data
             sel = bridge.selected_polygons(mesh)
             if not sel.any():
-                self.report({"ERROR"}, "Select the anchor faces in Edit Mode first")
-                return {"CANCELLED"}
+                raise BindError("Select the anchor faces in Edit Mode first")
             verts, c_world, n_world, radius = bridge.selection_frame(obj, sel)
             group = bridge.set_vertex_group(obj, bridge.unique_group_name(obj, "Anchor"), verts)
             empty = bridge.create_empty(
@@ -157,12 +153,11 @@ class MESH_OT_material_deform_remove_anchor(_MeshOperator, bpy.types.Operator):
 
     index: IntProperty(default=-1, options={"SKIP_SAVE"})
 
-    def execute(self, context):
-        s = _mesh_object(context).material_deform
+    def run(self, context, obj):
+        s = obj.material_deform
         i = self.index if self.index >= 0 else s.active_anchor_index
         if not 0 <= i < len(s.anchors):
-            self.report({"ERROR"}, "No anchor to remove")
-            return {"CANCELLED"}
+            raise BindError("No anchor to remove")
         s.anchors.remove(i)
         s.active_anchor_index = max(0, min(i, len(s.anchors) - 1))
         return {"FINISHED"}
@@ -174,19 +169,16 @@ class MESH_OT_material_deform_select_anchor(_MeshOperator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_select_anchor"
     bl_label = "Select Anchor Faces"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
+    def run(self, context, obj):
         s = obj.material_deform
         if not 0 <= s.active_anchor_index < len(s.anchors):
-            self.report({"ERROR"}, "No active anchor")
-            return {"CANCELLED"}
+            raise BindError("No active anchor")
         anc = s.anchors[s.active_anchor_index]
         if obj.mode == "EDIT":
             bpy.ops.object.mode_set(mode="OBJECT")  # sync groups before reading them
         w = bridge.vertex_group_weights(obj, [anc.vertex_group]).get(anc.vertex_group)
         if w is None:
-            self.report({"ERROR"}, f"Vertex group '{anc.vertex_group}' not found")
-            return {"CANCELLED"}
+            raise BindError(f"Vertex group '{anc.vertex_group}' not found")
         a = bridge.mesh_arrays(obj.data)
         lp = loop_polygon_index(a.loop_start, a.loop_total)
         mask = anchor_polygons(w >= 0, a.loop_vert, lp, a.n_polys)
@@ -201,16 +193,11 @@ class MESH_OT_material_deform_bind(_MeshOperator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_bind"
     bl_label = "Bind"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
+    def run(self, context, obj):
         if obj.mode != "OBJECT":
             bpy.ops.object.mode_set(mode="OBJECT")
-        try:
-            with _Progress(context) as progress:
-                entry = session.bind(obj, context.scene, progress)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+        with _Progress(context) as progress:
+            entry = session.bind(obj, context.scene, progress)
         self.report({"INFO"}, f"Bound {len(entry.rest)} vertices, {entry.n_anchors} anchor(s)")
         return {"FINISHED"}
 
@@ -221,15 +208,10 @@ class MESH_OT_material_deform_update(_MeshOperator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_update"
     bl_label = "Update"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
-        try:
-            if session.full_check(obj, context.scene):
-                raise BindError(session.stale_reason(obj))
-            session.apply(obj, context.scene, context.evaluated_depsgraph_get(), force=True)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+    def run(self, context, obj):
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        session.apply(obj, context.scene, context.evaluated_depsgraph_get(), force=True)
         return {"FINISHED"}
 
 
@@ -239,8 +221,7 @@ class MESH_OT_material_deform_reset(_MeshOperator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_reset"
     bl_label = "Reset"
 
-    def execute(self, context):
-        obj = _mesh_object(context)
+    def run(self, context, obj):
         if obj.mode != "OBJECT":
             bpy.ops.object.mode_set(mode="OBJECT")
         session.unbind(obj)
@@ -256,22 +237,16 @@ class MESH_OT_material_deform_bake(_MeshOperator, bpy.types.Operator):
     frame_start: IntProperty(name="Start", default=-1, options={"SKIP_SAVE"})
     frame_end: IntProperty(name="End", default=-1, options={"SKIP_SAVE"})
 
-    def execute(self, context):
-        obj = _mesh_object(context)
+    def run(self, context, obj):
         s = obj.material_deform
         start = self.frame_start if self.frame_start >= 0 else s.bake_start
         end = self.frame_end if self.frame_end >= 0 else s.bake_end
         if end < start:
-            self.report({"ERROR"}, f"Bake range is empty ({start}..{end})")
-            return {"CANCELLED"}
-        try:
-            if session.full_check(obj, context.scene):
-                raise BindError(session.stale_reason(obj))
-            with _Progress(context) as progress:
-                names = session.bake(obj, context.scene, range(start, end + 1), progress)
-        except BindError as exc:
-            self.report({"ERROR"}, str(exc))
-            return {"CANCELLED"}
+            raise BindError(f"Bake range is empty ({start}..{end})")
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        with _Progress(context) as progress:
+            names = session.bake(obj, context.scene, range(start, end + 1), progress)
         self.report({"INFO"}, f"Baked {len(names)} frame(s); Live turned off")
         return {"FINISHED"}
 
@@ -284,15 +259,13 @@ class MESH_OT_material_deform_assign_empty(_MeshOperator, bpy.types.Operator):
 
     empty: StringProperty(name="Empty")
 
-    def execute(self, context):
-        s = _mesh_object(context).material_deform
+    def run(self, context, obj):
+        s = obj.material_deform
         emp = bpy.data.objects.get(self.empty)
         if emp is None or emp.type != "EMPTY":
-            self.report({"ERROR"}, f"'{self.empty}' is not an Empty")
-            return {"CANCELLED"}
+            raise BindError(f"'{self.empty}' is not an Empty")
         if not 0 <= s.active_anchor_index < len(s.anchors):
-            self.report({"ERROR"}, "No active anchor")
-            return {"CANCELLED"}
+            raise BindError("No active anchor")
         s.anchors[s.active_anchor_index].empty = emp
         return {"FINISHED"}
 

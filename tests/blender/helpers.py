@@ -2,7 +2,6 @@
 
 import math
 
-import bmesh
 import bpy
 import numpy as np
 
@@ -48,21 +47,15 @@ def activate(obj):
 
 def select_faces(obj, pred):
     """Select exactly the polygons for which pred(polygon) is true; leaves Edit Mode on.
-    (bmesh, because writing edge selection through RNA segfaults Blender 5.0.1.)"""
+    (The add-on's bmesh route: writing edge selection through RNA segfaults Blender 5.0.1.)"""
+    from material_deform.bridge import select_polygons_edit
+
     activate(obj)
     if obj.mode != "OBJECT":
         bpy.ops.object.mode_set(mode="OBJECT")
     mask = [bool(pred(p)) for p in obj.data.polygons]
     bpy.ops.object.mode_set(mode="EDIT")
-    bm = bmesh.from_edit_mesh(obj.data)
-    for seq in (bm.verts, bm.edges, bm.faces):
-        for elem in seq:
-            elem.select = False
-    bm.faces.ensure_lookup_table()
-    for i, m in enumerate(mask):
-        if m:
-            bm.faces[i].select_set(True)
-    bmesh.update_edit_mesh(obj.data)
+    select_polygons_edit(obj, mask)
 
 
 def add_anchor(obj, pred, mode="POSITION"):

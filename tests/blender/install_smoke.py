@@ -11,9 +11,6 @@ import zipfile
 
 import bpy
 
-# isort: split
-import bmesh  # importable only once bpy is loaded (PyPI bpy module)
-
 argv = sys.argv[sys.argv.index("--") + 1 :] if "--" in sys.argv else sys.argv[1:]
 path = argv[0]
 with zipfile.ZipFile(path) as z:
@@ -43,18 +40,11 @@ assert "material_deform" in md.__file__ or "extensions" in md.__file__, md.__fil
 bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
 bpy.ops.mesh.primitive_cylinder_add(vertices=12, depth=4, radius=0.5, end_fill_type="NGON")
 obj = bpy.context.object
+bridge = importlib.import_module(module + ".bridge")
 for pick in (lambda p: p.center.z > 1.99, lambda p: p.center.z < -1.99):
     mask = [bool(pick(p)) for p in obj.data.polygons]
     bpy.ops.object.mode_set(mode="EDIT")
-    bm = bmesh.from_edit_mesh(obj.data)  # not RNA: edge select writes crash Blender 5.0.1
-    for seq in (bm.verts, bm.edges, bm.faces):
-        for elem in seq:
-            elem.select = False
-    bm.faces.ensure_lookup_table()
-    for i, m in enumerate(mask):
-        if m:
-            bm.faces[i].select_set(True)
-    bmesh.update_edit_mesh(obj.data)
+    bridge.select_polygons_edit(obj, mask)
     assert bpy.ops.mesh.material_deform_add_anchor() == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
 assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
