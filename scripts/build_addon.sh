@@ -17,8 +17,8 @@ fi
 # The native core is built for the Python of the target Blender: 3.11 for official builds and PyPI
 # bpy (3.4 to 5.0), 3.13 for Debian 13's Blender 4.3 (MD_BLENDER_PYTHON=3.13).
 BLENDER_PY="${MD_BLENDER_PYTHON:-3.11}"
-"$PY" -c "import sys; v = '%d.%d' % sys.version_info[:2]; assert v == '$BLENDER_PY', \
-  'need CPython $BLENDER_PY (the Blender ABI), got ' + v"
+"$PY" -c "import sys; v = '%d.%d' % sys.version_info[:2]; v == '$BLENDER_PY' or \
+  sys.exit('need CPython $BLENDER_PY (the Blender ABI), got ' + v)"
 
 BUILD=build/addon
 rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist

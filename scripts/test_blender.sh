@@ -50,8 +50,12 @@ run() {  # run LABEL CMD...
   local rc=0
   "$@" >"$log" 2>&1 || rc=$?
   grep -vE "^(Read blend|Info:|Warning:|Error:|Blender quit)" "$log" || true
-  summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)' "$log" | tail -n1)")
-  [[ $rc -eq 0 ]] || status=1
+  if [[ $rc -eq 77 ]]; then  # the run could not start here (e.g. the chroot without root)
+    summary+=("$label: $(tail -n1 "$log")")  # "SKIPPED: why"
+  else
+    summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)' "$log" | tail -n1)")
+    [[ $rc -eq 0 ]] || status=1
+  fi
   rm -f "$log"
 }
 run "Blender $(blender --version 2>/dev/null | head -n1 | cut -d' ' -f2) (Debian)" \

@@ -5,7 +5,8 @@
 #      `blender --command extension build` / `extension validate` (scripts/build_addon.sh);
 #   2. `extension validate` the zip that ships (dist/, Python 3.11 wheel) as well;
 #   3. run the Blender test suite (tests/blender), including installing both zips.
-# Needs root (debootstrap, chroot). Usage: scripts/test_blender_debian13.sh [pytest args]
+# Needs root (debootstrap, chroot); without it, exits 77 (skipped). Usage:
+#   scripts/test_blender_debian13.sh [pytest args]
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -17,13 +18,19 @@ PKGS=(blender python3-numpy python3-pytest libegl1 libegl-mesa0 libgl1-mesa-dri
 
 if [[ "$(id -u)" -ne 0 ]]; then
   echo "SKIPPED: the Debian 13 chroot needs root" >&2
-  exit 0
+  exit 77
 fi
 # A clean environment inside: the host's PIP_*/PYTHON* settings mean nothing there.
 in_chroot() { env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin HOME=/root LANG=C.UTF-8 chroot "$CH" "$@"; }
 
 if [[ "$(cat "$CH/.md-packages" 2>/dev/null)" != "${PKGS[*]}" ]]; then
-  if [[ ! -x "$CH/usr/bin/apt-get" ]]; then
+  # .md-debootstrapped is written only after debootstrap succeeded: a run that failed half-way
+  # (which can leave apt-get behind) starts over.
+  if [[ ! -f "$CH/.md-debootstrapped" ]]; then
+    if [[ -e "$CH" && -n "${MD_DEBIAN13_DIR:-}" && ! -d "$CH/debootstrap" ]]; then
+      echo "$CH exists and is not a chroot this script started: remove it or pick another" >&2
+      exit 2
+    fi
     command -v debootstrap >/dev/null || {
       apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq debootstrap
     } >/dev/null
@@ -31,23 +38,31 @@ if [[ "$(cat "$CH/.md-packages" 2>/dev/null)" != "${PKGS[*]}" ]]; then
     rm -rf "$CH" && mkdir -p "$CH"
     debootstrap --variant=minbase trixie "$CH" "$MIRROR" >"$CH.debootstrap.log" 2>&1 \
       || { tail -20 "$CH.debootstrap.log"; exit 2; }
+    touch "$CH/.md-debootstrapped"
   fi
   echo "[debian13] apt-get install ${PKGS[*]}"
-  in_chroot apt-get update -qq
+  in_chroot apt-get update -qq >"$CH.apt.log" 2>&1 || { tail -20 "$CH.apt.log"; exit 2; }
   in_chroot env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
     "${PKGS[@]}" >"$CH.apt.log" 2>&1 || { tail -20 "$CH.apt.log"; exit 2; }
   echo "${PKGS[*]}" >"$CH/.md-packages"
 fi
 
-# The working tree (tracked and new files, as they are now) into /proj; /proj/build is kept so
-# the native build is incremental.
+# The working tree (tracked and new files, as they are now, minus deleted ones) into a fresh
+# /proj; only /proj/build is kept, so that the native build is incremental.
 mkdir -p "$CH/proj"
-rm -rf "$CH/proj/dist" "$CH/proj/addon" "$CH/proj/tests" "$CH/proj/src"
+find "$CH/proj" -mindepth 1 -maxdepth 1 ! -name build -exec rm -rf {} +
 git ls-files -co --exclude-standard -z | while IFS= read -r -d '' f; do
-  [[ -e "$f" ]] && printf '%s\0' "$f"
+  [[ -e "$f" ]] || continue
+  printf '%s\0' "$f"
 done | tar --null -T - -cf - | tar -xf - -C "$CH/proj"
 mkdir -p "$CH/proj/shipped"
-cp dist/material_deform-*.zip "$CH/proj/shipped/" 2>/dev/null || true
+shopt -s nullglob
+shipped=(dist/material_deform-*[0-9].zip)
+if [[ ${#shipped[@]} -eq 0 ]]; then
+  echo "no extension zip in dist/ to validate (run scripts/build_addon.sh first)" >&2
+  exit 2
+fi
+cp "${shipped[@]}" "$CH/proj/shipped/"
 
 echo "[debian13] $(in_chroot blender --version 2>/dev/null | head -n1): build_addon.sh"
 in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 BLENDER42=/usr/bin/blender \
@@ -55,7 +70,6 @@ in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 BLENDER42=/us
   || { cat "$CH/proj/build_addon.log"; exit 2; }
 grep -E "^(created|building|extension|legacy)|Success|ERROR|FATAL" "$CH/proj/build_addon.log" || true
 
-shopt -s nullglob
 for z in "$CH"/proj/shipped/material_deform-*[0-9].zip; do
   echo "[debian13] extension validate shipped/${z##*/}"
   rc=0

@@ -118,9 +118,8 @@ struct PoissonRepositioner::Impl {
   std::vector<Eigen::Vector3d> gauge_rest_mean;
   std::vector<double> gauge_count;
 
-  // The solver's row order: permuted row i is free vertex row_free[i]; free vertex f is row
-  // free_row[f].
-  std::vector<int> row_free, free_row;
+  // The solver's row order: free vertex f is permuted row free_row[f].
+  std::vector<int> free_row;
 
   mutable std::vector<double> local;  // grouped layout, kGroupStride per group
   mutable std::vector<double> y4;     // right-hand side, then solution, (nf,4) permuted rows
@@ -288,9 +287,9 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   }
 
   d.local.assign(d.H.size(), 0.0);
-  d.row_free = d.chol->permutation();
-  d.free_row.resize(d.row_free.size());
-  for (size_t i = 0; i < d.row_free.size(); ++i) d.free_row[d.row_free[i]] = static_cast<int>(i);
+  const std::vector<int> row_free = d.chol->permutation();  // row i is free vertex row_free[i]
+  d.free_row.resize(row_free.size());
+  for (size_t i = 0; i < row_free.size(); ++i) d.free_row[row_free[i]] = static_cast<int>(i);
   d.y4.assign(4 * static_cast<size_t>(nf), 0.0);
   d.fixed_pos.resize(static_cast<Eigen::Index>(d.fixed_all.size()), 3);
   for (size_t s = d.num_user_fixed; s < d.fixed_all.size(); ++s) {
