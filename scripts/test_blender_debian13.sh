@@ -70,13 +70,13 @@ in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 BLENDER42=/us
   || { cat "$CH/proj/build_addon.log"; exit 2; }
 grep -E "^(created|building|extension|legacy)|Success|ERROR|FATAL" "$CH/proj/build_addon.log" || true
 
-for z in "$CH"/proj/shipped/material_deform-*[0-9].zip; do
-  echo "[debian13] extension validate shipped/${z##*/}"
+for z in "${shipped[@]##*/}"; do
+  echo "[debian13] extension validate shipped/$z"
   rc=0
-  out="$(in_chroot blender --factory-startup --command extension validate \
-    "/proj/shipped/${z##*/}" 2>&1)" || rc=$?
+  out="$(in_chroot blender --factory-startup --command extension validate "/proj/shipped/$z" \
+    2>&1)" || rc=$?
   grep -v "could not get a list of mounted" <<<"$out" || true
-  [[ $rc -eq 0 ]] || { echo "extension validate failed on ${z##*/}" >&2; exit 1; }
+  [[ $rc -eq 0 ]] || { echo "extension validate failed on $z" >&2; exit 1; }
 done
 
 # The suite, with the core built in step 1 (the install tests take the zips in /proj/dist).
