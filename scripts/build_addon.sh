@@ -5,13 +5,16 @@
 #   dist/material_deform-<ver>.zip          Blender 4.2+ extension (manifest + matdeform wheel),
 #                                           built and validated with Blender's own extension tool
 # Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_BLENDER_PYTHON (3.11),
-# BLENDER42 (a Blender >= 4.2 executable for the extension tool), MD_WHEEL (use this
+# BLENDER42 (a Blender >= 4.2 executable for the extension tool; without it the extension tool
+# runs inside PyPI's bpy: BPY_PYTHON, or .venv-bpy, created if missing), MD_WHEEL (use this
 # prebuilt matdeform wheel), MD_AUDITWHEEL=1 (bundle libcholmod & co. via auditwheel repair).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 PY="${PYTHON:-}"
 if [[ -z "$PY" ]]; then
+  # run on its own (as docs/addon.md says): the Debian build packages and the project's .venv
+  [[ -n "${MD_WHEEL:-}" ]] || bash scripts/setup.sh
   if [[ -x .venv/bin/python ]]; then PY=.venv/bin/python; else PY=python3; fi
 fi
 # The native core is built for the Python of the target Blender: 3.11 for official builds and PyPI
@@ -88,18 +91,19 @@ EXT_CLI=()
 if [[ -n "${BLENDER42:-}" ]]; then
   EXT_CLI=("$BLENDER42" --factory-startup --command extension)
 else
-  BPY_PY="${BPY_PYTHON:-.venv-bpy/bin/python}"  # a Python with the PyPI bpy module
-  [[ -x "$BPY_PY" ]] || BPY_PY="$PY"
-  if "$BPY_PY" -c "import bpy" >/dev/null 2>&1; then
-    EXT_CLI=("$BPY_PY" scripts/blender_command.py extension)
+  # A Python with the PyPI bpy module: BPY_PYTHON, else the project's .venv-bpy, created here
+  # if it does not exist yet (so that this script builds both zips on a fresh machine too).
+  BPY_PY="${BPY_PYTHON:-}"
+  if [[ -z "$BPY_PY" ]]; then
+    . scripts/lib.sh
+    ensure_bpy_venv .venv-bpy "${MD_BPY_VERSION:-4.5.4}" \
+      || { echo "cannot set up .venv-bpy for Blender's extension tool" >&2; exit 2; }
+    BPY_PY=.venv-bpy/bin/python
   fi
+  EXT_CLI=("$BPY_PY" scripts/blender_command.py extension)
 fi
-if [[ ${#EXT_CLI[@]} -gt 0 ]]; then
-  rm -f "dist/material_deform-$VERSION.zip"
-  "${EXT_CLI[@]}" build --source-dir "$BUILD/extension" --output-dir dist
-  "${EXT_CLI[@]}" validate "dist/material_deform-$VERSION.zip"
-  echo "extension: dist/material_deform-$VERSION.zip (built and validated)"
-else
-  echo "WARNING: no Blender >= 4.2 and no bpy module: extension zip not built" >&2
-fi
+rm -f "dist/material_deform-$VERSION.zip"
+"${EXT_CLI[@]}" build --source-dir "$BUILD/extension" --output-dir dist
+"${EXT_CLI[@]}" validate "dist/material_deform-$VERSION.zip"
+echo "extension: dist/material_deform-$VERSION.zip (built and validated)"
 ls -l dist

@@ -4,9 +4,10 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
-if ! command -v blender >/dev/null \
-   || ! blender -b --factory-startup --python-expr "import numpy" >/dev/null 2>&1; then
-  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq blender python3-numpy
+. scripts/lib.sh
+if ! blender_can_import numpy; then
+  apt_install blender python3-numpy || exit 2
+  blender_can_import numpy || { echo "Debian's blender cannot import numpy" >&2; exit 2; }
 fi
 VENDOR="$ROOT/build/addon/legacy/material_deform/_vendor"
 [[ -d "$VENDOR/matdeform" ]] || scripts/build_addon.sh

@@ -8,32 +8,10 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 BPY_VERSION="${MD_BPY_VERSION:-4.5.4}"
 
-need_apt=()
-command -v blender >/dev/null || need_apt+=(blender)
-if command -v blender >/dev/null; then
-  blender -b --factory-startup --python-expr "import numpy, pytest" >/dev/null 2>&1 \
-    || need_apt+=(python3-numpy python3-pytest)
-else
-  need_apt+=(python3-numpy python3-pytest)
-fi
-if [[ ${#need_apt[@]} -gt 0 ]]; then
-  echo "apt: installing ${need_apt[*]}"
-  apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need_apt[@]}" \
-    || { echo "apt-get install failed" >&2; exit 2; }
-fi
-
-venv() {  # venv DIR BPY_VERSION
-  local dir=$1 ver=$2
-  if [[ ! -x "$dir/bin/python" ]]; then
-    "${PYTHON311:-python3}" -c 'import sys; assert sys.version_info[:2] == (3, 11)' \
-      || { echo "need python3.11 for the bpy wheel (set PYTHON311)" >&2; exit 2; }
-    "${PYTHON311:-python3}" -m venv "$dir"
-  fi
-  "$dir/bin/python" -c "import bpy, pytest, numpy; assert bpy.app.version_string.startswith('${ver%.*}')" \
-    >/dev/null 2>&1 || "$dir/bin/pip" install -q "bpy==$ver" pytest
-}
+. scripts/lib.sh
+ensure_debian_blender || exit 2
 # separate venvs: bpy pins its own numpy, the project's .venv must not be disturbed
-venv .venv-bpy "$BPY_VERSION"
+ensure_bpy_venv .venv-bpy "$BPY_VERSION" || exit 2
 
 # build the wheel and both zips; the tests import the core from the vendored copy
 scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
@@ -66,7 +44,7 @@ if [[ "${MD_DEBIAN13:-1}" == 1 ]]; then
   run "Blender 4.3 (Debian 13 chroot)" bash scripts/test_blender_debian13.sh "$@"
 fi
 if [[ "${MD_BPY5:-0}" == 1 ]]; then
-  venv .venv-bpy5 5.0.1
+  ensure_bpy_venv .venv-bpy5 5.0.1 || exit 2
   run "bpy 5.0.1 (PyPI)" .venv-bpy5/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
 fi
 printf '%s\n' "${summary[@]}"

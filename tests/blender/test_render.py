@@ -54,7 +54,7 @@ def test_background_render_follows_animated_empty(tmp_path):
         f"import sys; sys.path[:0] = {[str(p) for p in paths]!r}; "
         "import addon_utils; addon_utils.enable('material_deform')"
     )
-    cmd = [bpy.app.binary_path, "-b", str(blend), "--python-expr", expr]
+    cmd = [bpy.app.binary_path, "-b", str(blend), "--python-exit-code", "1", "--python-expr", expr]
     cmd += ["-o", str(tmp_path / "frame_####"), "-F", "PNG", "-f", "1", "-f", "10"]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
