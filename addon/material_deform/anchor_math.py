@@ -10,36 +10,41 @@ POSITION = "POSITION"  # anchor follows the Empty's full transform (pinned verti
 ROTATION = "ROTATION"  # paper mode: only rotation + scale prescribed
 
 
-def anchor_transform(m_obj, m_empty_now, m_empty_bind) -> np.ndarray:
-    """Empty motion since bind, expressed in the mesh object's local space:
-    ``inv(M_obj) @ M_now @ inv(M_bind) @ M_obj``."""
+def anchor_transform(m_obj, m_empty_now, m_empty_bind, m_obj_bind=None) -> np.ndarray:
+    """Motion of an anchor since bind in the mesh object's local space:
+    ``inv(M_obj) @ M_now @ inv(M_bind) @ M_obj_bind`` (``M_obj_bind`` = the object's world
+    matrix at bind, default ``M_obj``). The anchor faces then follow the Empty exactly in world
+    space, also when the Empty is parented to the object or the object moved since bind."""
     m_obj = np.asarray(m_obj, dtype=np.float64)
-    return np.linalg.solve(m_obj, m_empty_now @ np.linalg.solve(m_empty_bind, m_obj))
+    m_obj_bind = m_obj if m_obj_bind is None else np.asarray(m_obj_bind, dtype=np.float64)
+    return np.linalg.solve(m_obj, m_empty_now @ np.linalg.solve(m_empty_bind, m_obj_bind))
 
 
-def anchor_transforms(m_obj, now, bind) -> np.ndarray:
+def anchor_transforms(m_obj, now, bind, m_obj_bind=None) -> np.ndarray:
     """Vectorised :func:`anchor_transform` for (k,4,4) stacks."""
     m_obj = np.asarray(m_obj, dtype=np.float64)
+    m_obj_bind = m_obj if m_obj_bind is None else np.asarray(m_obj_bind, dtype=np.float64)
     now = np.asarray(now, dtype=np.float64).reshape(-1, 4, 4)
     bind = np.asarray(bind, dtype=np.float64).reshape(-1, 4, 4)
-    return affine_inverse(m_obj) @ now @ affine_inverse(bind) @ m_obj
+    return affine_inverse(m_obj) @ now @ affine_inverse(bind) @ m_obj_bind
 
 
 class PoseTransforms:
     """:func:`anchor_transforms` for live updates: the inverses depend only on the object's
-    matrix and the bind matrices, which stay put while an Empty is dragged, so they are kept
+    matrices and the bind matrices, which stay put while an Empty is dragged, so they are kept
     until either changes (two small matmuls per update instead of ~0.2 ms of numpy calls)."""
 
     def __init__(self):
         self._key = None
         self._left = self._right = None
 
-    def __call__(self, m_obj, now, bind) -> np.ndarray:
+    def __call__(self, m_obj, now, bind, m_obj_bind=None) -> np.ndarray:
         m_obj = np.asarray(m_obj, dtype=np.float64)
+        m_obj_bind = m_obj if m_obj_bind is None else np.asarray(m_obj_bind, dtype=np.float64)
         bind = np.asarray(bind, dtype=np.float64).reshape(-1, 4, 4)
-        key = m_obj.tobytes() + bind.tobytes()
+        key = m_obj.tobytes() + bind.tobytes() + m_obj_bind.tobytes()
         if key != self._key:
-            self._left, self._right = affine_inverse(m_obj), affine_inverse(bind) @ m_obj
+            self._left, self._right = affine_inverse(m_obj), affine_inverse(bind) @ m_obj_bind
             self._key = key
         return self._left @ np.asarray(now, dtype=np.float64).reshape(-1, 4, 4) @ self._right
 

@@ -12,6 +12,7 @@ import bpy
 import numpy as np
 from mathutils import Matrix, Vector
 
+from .errors import BindError
 from .stiffness_map import loop_polygon_index
 
 OUTPUT_KEY = "Material Deform"
@@ -50,16 +51,59 @@ def is_mesh(obj) -> bool:
     return obj is not None and obj.type == "MESH"
 
 
-def _rest_source(mesh):
+def reference_key(mesh):
     keys = mesh.shape_keys
-    if keys is not None and keys.reference_key is not None:
-        return keys.reference_key.data
-    return mesh.vertices
+    return None if keys is None else keys.reference_key
+
+
+def _rest_source(mesh):
+    """Where the rest shape lives: the reference (Basis) key if there are shape keys. Raises
+    BindError when it does not hold one point per vertex (vertices added from a script after
+    the keys were made), so nothing ever reads past its end."""
+    ref = reference_key(mesh)
+    if ref is None:
+        return mesh.vertices
+    if len(ref.data) != len(mesh.vertices):
+        raise BindError(
+            f"The mesh has {len(mesh.vertices)} vertices but its Basis shape key holds "
+            f"{len(ref.data)}: vertices were added outside Edit Mode. Enter and leave Edit Mode "
+            "to sync the shape keys, then Bind"
+        )
+    return ref.data
 
 
 def rest_positions_f32(mesh) -> np.ndarray:
     """Exact stored rest coordinates (float32, as Blender keeps them)."""
-    return _get(_rest_source(mesh), "co", len(mesh.vertices), np.float32, 3)
+    src = _rest_source(mesh)
+    return _get(src, "co", len(src), np.float32, 3)
+
+
+def rest_unchanged(mesh, expected: np.ndarray, buf: np.ndarray) -> bool:
+    """True if the rest coordinates equal ``expected`` (n,3) float32 bit for bit. Runs on every
+    live update, so the Basis is read in bulk (``buf``: a scratch array of the same shape)."""
+    try:
+        src = _rest_source(mesh)
+    except BindError:
+        return False
+    if len(src) != len(expected):
+        return False
+    ref = reference_key(mesh)
+    flat = buf.reshape(-1)
+    if ref is None:
+        mesh.vertices.foreach_get("co", flat)
+    else:
+        points = getattr(ref, "points", None)
+        if points is not None:
+            points.foreach_get("co", flat)
+        elif not _raw_copy_from_key(ref, flat):
+            ref.data.foreach_get("co", flat)
+    return np.array_equal(buf, expected)
+
+
+def attribute_kind(mesh, name):
+    """(domain, data_type) of a mesh attribute, None if there is none of that name."""
+    attr = mesh.attributes.get(name)
+    return None if attr is None else (attr.domain, attr.data_type)
 
 
 def rest_positions(mesh) -> np.ndarray:
@@ -381,12 +425,19 @@ def object_in_scene(obj, scene) -> bool:
 
 def ensure_output_key(obj, name=OUTPUT_KEY):
     """Return (key_block, created_basis). Creates a Basis (copy of the mesh) if there were no
-    shape keys, so the rest shape itself is never written to."""
+    shape keys, so the rest shape itself is never written to. Raises BindError if the key of
+    that name is the reference key (the Basis was removed)."""
     created = False
     if obj.data.shape_keys is None:
         obj.shape_key_add(name="Basis", from_mix=False)
         created = True
-    kb = obj.data.shape_keys.key_blocks.get(name)
+    keys = obj.data.shape_keys
+    kb = keys.key_blocks.get(name)
+    if kb is not None and kb == keys.reference_key:
+        raise BindError(
+            f"Shape key '{name}' is the reference (Basis) key: rename it, or add a Basis above "
+            "it, then Bind"
+        )
     if kb is None:
         kb = obj.shape_key_add(name=name, from_mix=False)
         # keep edits going to the Basis, not to the output
@@ -396,9 +447,21 @@ def ensure_output_key(obj, name=OUTPUT_KEY):
     return kb, created
 
 
-def output_key(obj, name=OUTPUT_KEY):
+def output_key(obj, name=OUTPUT_KEY, pointer: int = 0):
+    """The output key block: the one named ``name``, else the one at ``pointer`` (the block
+    the session last wrote; found after a rename). None if neither exists."""
     keys = obj.data.shape_keys
-    return None if keys is None else keys.key_blocks.get(name)
+    if keys is None:
+        return None
+    kb = keys.key_blocks.get(name)
+    if kb is None and pointer:
+        kb = next((k for k in keys.key_blocks if k.as_pointer() == pointer), None)
+    return kb
+
+
+def is_reference_key(obj, kb) -> bool:
+    keys = obj.data.shape_keys
+    return keys is not None and kb == keys.reference_key
 
 
 def write_key(obj, kb, positions) -> None:
@@ -420,21 +483,38 @@ def write_key(obj, kb, positions) -> None:
     obj.data.shape_keys.update_tag()
 
 
-def _raw_copy_into_key(kb, flat) -> bool:
+def _key_array(kb, size: int) -> int:
+    """Address of the key block's float[3] array if it is one contiguous block of ``size``
+    floats (what Blender < 4.1 keeps), else 0."""
     data = kb.data
     n = len(data)
-    if n == 0 or flat.size != 3 * n:
-        return n == 0 and flat.size == 0
+    if n == 0 or size != 3 * n:
+        return 0
     first, last = data[0].as_pointer(), data[n - 1].as_pointer()
-    if first == 0 or last - first != 12 * (n - 1):
-        return False
-    ctypes.memmove(first, flat.ctypes.data, flat.nbytes)
-    return True
+    return first if first != 0 and last - first == 12 * (n - 1) else 0
 
 
-def remove_output(obj, remove_basis: bool) -> None:
-    kb = output_key(obj)
-    if kb is not None:
+def _raw_copy_into_key(kb, flat) -> bool:
+    if flat.size == 0:
+        return len(kb.data) == 0
+    addr = _key_array(kb, flat.size)
+    if addr:
+        ctypes.memmove(addr, flat.ctypes.data, flat.nbytes)
+    return bool(addr)
+
+
+def _raw_copy_from_key(kb, flat) -> bool:
+    if flat.size == 0:
+        return len(kb.data) == 0
+    addr = _key_array(kb, flat.size)
+    if addr:
+        ctypes.memmove(flat.ctypes.data, addr, flat.nbytes)
+    return bool(addr)
+
+
+def remove_output(obj, remove_basis: bool, name=OUTPUT_KEY, pointer: int = 0) -> None:
+    kb = output_key(obj, name, pointer)
+    if kb is not None and not is_reference_key(obj, kb):  # never the rest shape itself
         obj.shape_key_remove(kb)
     keys = obj.data.shape_keys
     if remove_basis and keys is not None and len(keys.key_blocks) == 1:
@@ -457,8 +537,8 @@ def bake_key(obj, frame, positions) -> str:
     return name
 
 
-def set_output_value(obj, value: float) -> None:
-    kb = output_key(obj)
+def set_output_value(obj, value: float, name=OUTPUT_KEY) -> None:
+    kb = output_key(obj, name)
     if kb is not None:
         kb.value = value
 

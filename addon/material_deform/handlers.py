@@ -7,7 +7,7 @@ from __future__ import annotations
 import bpy
 from bpy.app.handlers import persistent
 
-from . import session
+from . import bake, session
 
 _busy = False  # our own shape-key write triggers another depsgraph update
 
@@ -21,6 +21,21 @@ def _run(scene, depsgraph):
         session.live_update(scene, depsgraph)
     finally:
         _busy = False
+    if session.unsettled() and not bpy.app.timers.is_registered(_keep_settling):
+        bpy.app.timers.register(_keep_settling, first_interval=_SETTLE_INTERVAL)
+
+
+_SETTLE_INTERVAL = 0.02  # s between the live updates that let an iterative result settle
+
+
+def _keep_settling():
+    """Timer: an iterative method stopped on its per-update budget before converging, so the
+    mesh keeps settling after the user stops dragging (each call spends one more budget)."""
+    scene = bpy.context.scene
+    if scene is None or not session.unsettled():
+        return None
+    _run(scene, None)
+    return _SETTLE_INTERVAL if session.unsettled() else None
 
 
 @persistent
@@ -41,7 +56,7 @@ def on_load(_filepath=None, *_args):
     session.clear_cache()
     scene = bpy.context.scene
     if scene is not None:
-        session.prepare_scene(scene)
+        bake.prepare_scene(scene)
 
 
 @persistent
@@ -74,4 +89,6 @@ def unregister():
         lst = getattr(bpy.app.handlers, name)
         if fn in lst:
             lst.remove(fn)
+    if bpy.app.timers.is_registered(_keep_settling):
+        bpy.app.timers.unregister(_keep_settling)
     session.clear_cache()

@@ -5,9 +5,9 @@ from __future__ import annotations
 import bpy
 from bpy.props import EnumProperty, IntProperty, StringProperty
 
-from . import bridge, session
+from . import bake, bridge, learn, session, stiffness
 from .anchor_math import anchor_polygons
-from .session import BindError
+from .model import BindError
 from .stiffness_map import loop_polygon_index
 
 
@@ -67,7 +67,7 @@ class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Oper
 
     def run(self, context, obj):
         with bridge.object_mode(context, obj):
-            _paint, psi, _phi = session.stiffness_from_paint(obj)
+            _paint, psi, _phi = stiffness.stiffness_from_paint(obj)
             reason = session.full_check(obj, context.scene)
         msg = f"Stiffness: {len(psi)} faces, range {psi.min():.3g} .. {psi.max():.3g}"
         self.report({"WARNING"} if reason else {"INFO"}, reason or msg)
@@ -83,10 +83,8 @@ class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator)
     bl_label = "Learn from Shape Keys"
 
     def run(self, context, obj):
-        from . import material_setup
-
         with bridge.object_mode(context, obj), _Progress(context) as progress:
-            res = material_setup.learn_from_shape_keys(obj, progress)
+            res = learn.learn_from_shape_keys(obj, progress)
             reason = session.full_check(obj, context.scene)
         msg = (
             f"Learned from {len(res['keys'])} shape key(s); bending {res['phi'].min():.3g} .. "
@@ -104,7 +102,7 @@ class MESH_OT_material_deform_show_stiffness(_MeshOperator, bpy.types.Operator):
 
     def run(self, context, obj):
         with bridge.object_mode(context, obj):
-            session.show_stiffness(obj)
+            stiffness.show_stiffness(obj)
         bridge.show_attribute_shading(context)
         return {"FINISHED"}
 
@@ -215,6 +213,22 @@ class MESH_OT_material_deform_update(_MeshOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
+class MESH_OT_material_deform_settle(_MeshOperator, bpy.types.Operator):
+    """Solve the current pose to convergence now (iterative methods settle over several live
+    updates while you drag; this finishes at once)"""
+
+    bl_idname = "mesh.material_deform_settle"
+    bl_label = "Settle"
+
+    def run(self, context, obj):
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        with _Progress(context) as progress:
+            progress(0.1, "Material Deform: settling")
+            session.settle(obj, context.scene, context.evaluated_depsgraph_get())
+        return {"FINISHED"}
+
+
 class MESH_OT_material_deform_reset(_MeshOperator, bpy.types.Operator):
     """Remove the deformation and the bind: the mesh gets its exact rest shape back"""
 
@@ -246,7 +260,7 @@ class MESH_OT_material_deform_bake(_MeshOperator, bpy.types.Operator):
         if session.full_check(obj, context.scene):
             raise BindError(session.stale_reason(obj))
         with _Progress(context) as progress:
-            names = session.bake(obj, context.scene, range(start, end + 1), progress)
+            names = bake.bake(obj, context.scene, range(start, end + 1), progress)
         self.report({"INFO"}, f"Baked {len(names)} frame(s); Live turned off")
         return {"FINISHED"}
 
@@ -279,17 +293,11 @@ classes = (
     MESH_OT_material_deform_assign_empty,
     MESH_OT_material_deform_bind,
     MESH_OT_material_deform_update,
+    MESH_OT_material_deform_settle,
     MESH_OT_material_deform_reset,
     MESH_OT_material_deform_bake,
     MESH_OT_material_deform_learn_stiffness,
 )
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

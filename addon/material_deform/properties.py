@@ -14,6 +14,8 @@ from bpy.props import (
     StringProperty,
 )
 
+from . import methods
+
 
 def _anchor_changed(self, _context):
     from . import session  # late: session imports the core lazily, keep registration light
@@ -66,7 +68,20 @@ class MaterialDeformAnchor(bpy.types.PropertyGroup):
     bind_matrix: FloatVectorProperty(size=16, default=IDENTITY16, options={"HIDDEN"})
 
 
+def _method_changed(self, _context):
+    from . import session
+
+    session.mark_stale(self.id_data, "Method changed since bind - click Bind again")
+
+
 class MaterialDeformSettings(bpy.types.PropertyGroup):
+    method: EnumProperty(
+        name="Method",
+        description="How the mesh follows the anchors (every method uses the same anchors)",
+        items=methods.enum_items(),
+        default=methods.all_methods()[0].key,
+        update=_method_changed,
+    )
     anchors: CollectionProperty(type=MaterialDeformAnchor)
     active_anchor_index: IntProperty(name="Active Anchor", default=0, min=0)
 
@@ -135,21 +150,36 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
     fp_topology: StringProperty(options={"HIDDEN"})
     fp_anchors: StringProperty(options={"HIDDEN"})
     fp_stiffness: StringProperty(options={"HIDDEN"})
+    fp_method: StringProperty(options={"HIDDEN"})
+    # the output shape key's name (followed when the user renames it)
+    output_key_name: StringProperty(default="Material Deform", options={"HIDDEN"})
+    # world matrix of the mesh object at bind, row-major; all zeros: bound by an older version
+    obj_bind_matrix: FloatVectorProperty(size=16, default=(0.0,) * 16, options={"HIDDEN"})
 
     bake_start: IntProperty(name="Start", default=1)
     bake_end: IntProperty(name="End", default=50)
 
 
-classes = (MaterialDeformAnchor, MaterialDeformSettings)
+# Each method's own settings group becomes obj.material_deform.<settings_name>.
+for _m in methods.all_methods():
+    if _m.settings_class is not None:
+        MaterialDeformSettings.__annotations__[_m.settings_name] = PointerProperty(
+            type=_m.settings_class
+        )
+
+classes = (
+    MaterialDeformAnchor,
+    *(m.settings_class for m in methods.all_methods() if m.settings_class is not None),
+    MaterialDeformSettings,
+)
+_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
 
 
 def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
+    _register_classes()
     bpy.types.Object.material_deform = PointerProperty(type=MaterialDeformSettings)
 
 
 def unregister():
     del bpy.types.Object.material_deform
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+    _unregister_classes()

@@ -1,57 +1,29 @@
-"""Bind / update logic. Talks to Blender only through ``bridge``; keeps the built solvers in a
-module-level cache (never saved) keyed by object pointer and validated by fingerprints that are
-saved on the object."""
+"""What every method shares: anchors and their Empties, the solver cache, staleness, the live
+update and the output shape key.
+
+Talks to Blender only through ``bridge``. Built solvers live in a module-level cache (never
+saved) keyed by object pointer and validated by fingerprints that are saved on the object. The
+active method (``methods``) is asked to gather its own inputs, to build a solver and to solve
+for the anchor transforms; the session never branches on which method it is.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
 from . import anchor_math as am
-from . import bridge, core
+from . import bridge, methods, stiffness
 from . import stiffness_map as sm
-
-
-class BindError(Exception):
-    """Bad input or stale bind; the message is meant for the user."""
-
-
-@dataclass
-class Inputs:
-    arrays: bridge.MeshArrays
-    anchor_faces: list  # per anchor: triangle indices
-    modes: list
-    shear: np.ndarray | None
-    bend: np.ndarray | None
-    used: np.ndarray | None  # vertices kept after dropping loose ones
-    tris_c: np.ndarray
-    fp: tuple
-    region: np.ndarray | None = None  # triangles of the region of interest (paper Sec. 7)
-    axes: np.ndarray | None = None  # anisotropy axes (3,3) when bend is (E,3)
-
-
-@dataclass
-class Entry:
-    deformer: object
-    fp: tuple
-    counts: tuple
-    rest: np.ndarray  # (n,3) float64, full vertex set
-    used: np.ndarray | None
-    use_4x4: bool
-    n_anchors: int
-    last_key: bytes | None = None
-    extra: dict = field(default_factory=dict)
-
+from .model import BindError, Entry, Inputs, load_core, settings
 
 _cache: dict[int, Entry] = {}
 _stale: dict[int, str] = {}  # object pointer -> why it cannot update
 _last_mode: dict[int, str] = {}
+_unsettled: set[int] = set()  # objects whose last live solve stopped on its iteration budget
 
-
-def settings(obj):
-    return obj.material_deform
+__all__ = ["BindError", "Inputs", "Entry", "settings"]  # re-exported for the operators
 
 
 def stale_reason(obj) -> str:
@@ -62,6 +34,15 @@ def clear_cache() -> None:
     _cache.clear()
     _stale.clear()
     _last_mode.clear()
+    _unsettled.clear()
+
+
+def method_of(obj) -> methods.Method:
+    key = settings(obj).method
+    try:
+        return methods.get(key)
+    except KeyError:
+        raise BindError(f"Unknown method '{key}' (saved by a newer version?)") from None
 
 
 def after_undo(scene, objects) -> None:
@@ -74,6 +55,7 @@ def after_undo(scene, objects) -> None:
     for key in [k for k in _cache if k not in bound]:
         del _cache[key]
     _stale.clear()
+    _unsettled.clear()
     for obj in scene.objects:
         key = obj.as_pointer()
         if key not in bound:
@@ -81,6 +63,7 @@ def after_undo(scene, objects) -> None:
         entry = _cache.get(key)
         if entry is not None:
             entry.last_key = None  # the output key was restored too: rewrite it on next update
+            entry.key_pointer = 0  # and its block may live elsewhere now
         if obj.mode == "OBJECT":
             try:
                 full_check(obj, scene)
@@ -90,7 +73,7 @@ def after_undo(scene, objects) -> None:
 
 
 def mark_stale(obj, reason: str) -> None:
-    """Called when a bound setting changes in the UI: stop updating until the next Bind."""
+    """A bound setting changed: stop updating until the next Bind."""
     s = settings(obj) if bridge.is_mesh(obj) else None
     if s is not None and s.bound:
         s.rebind_reason = reason  # saved, so it also holds after reloading the file
@@ -99,84 +82,12 @@ def mark_stale(obj, reason: str) -> None:
         _cache.pop(key, None)
 
 
-# --- stiffness ------------------------------------------------------------------------------
-
-
-def stiffness_from_paint(obj) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Convert the painted group / colour attribute to per-face psi and per-edge phi and store
-    them as mesh attributes. Returns (face paint, psi, phi)."""
-    s = settings(obj)
-    mesh = obj.data
-    if s.anisotropic:
-        from . import material_setup
-
-        return material_setup.anisotropic_from_paint(obj)
-    if len(mesh.polygons) == 0:
-        raise BindError("Mesh has no faces")
-    if s.stiffness_source == "VERTEX_GROUP":
-        w = bridge.vertex_group_weights(obj, [s.stiffness_group]).get(s.stiffness_group)
-        if w is None:
-            raise BindError(
-                f"No vertex group '{s.stiffness_group}': paint it in Weight Paint mode first"
-            )
-        vertex_paint = np.maximum(w, 0.0)  # vertices outside the group count as flexible
-    else:
-        rgba = bridge.color_attribute_vertex_rgba(mesh, s.color_attribute)
-        if rgba is None:
-            raise BindError(
-                f"No color attribute '{s.color_attribute}': paint it in Vertex Paint mode first"
-            )
-        vertex_paint = sm.color_to_paint(rgba)
-    a = bridge.mesh_arrays(mesh)
-    loop_poly = sm.loop_polygon_index(a.loop_start, a.loop_total)
-    face_paint = sm.face_paint_from_vertex(vertex_paint, a.loop_vert, loop_poly, a.n_polys)
-    psi = sm.paint_to_stiffness(face_paint, s.stiffness_span)
-    phi = sm.edge_stiffness(psi, a.loop_edge, loop_poly, len(a.edge_verts))
-    bridge.write_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", psi)
-    bridge.write_float_attribute(mesh, bridge.BEND_ATTR, "EDGE", phi)
-    return face_paint, psi, phi
-
-
-def show_stiffness(obj) -> np.ndarray:
-    """Write a display colour attribute from the stored psi; returns the face paint values."""
-    s = settings(obj)
-    mesh = obj.data
-    psi = bridge.read_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", len(mesh.polygons))
-    if psi is None:
-        raise BindError("No stiffness stored yet: run 'Stiffness from Paint' first")
-    a = bridge.mesh_arrays(mesh)
-    loop_poly = sm.loop_polygon_index(a.loop_start, a.loop_total)
-    paint = sm.stiffness_to_paint(psi, s.stiffness_span)
-    bridge.write_face_colors(mesh, bridge.DISPLAY_ATTR, sm.stiffness_colors(paint), loop_poly)
-    return paint
-
-
 # --- gathering and validating inputs ----------------------------------------------------------
 
 
-def gather(obj, scene) -> Inputs:
-    """Read everything the solver needs and validate it; raises BindError with a clear
-    message and touches nothing."""
-    if not bridge.is_mesh(obj):
-        raise BindError("Active object is not a mesh")
-    s = settings(obj)
-    mesh = obj.data
-    if len(mesh.polygons) == 0:
-        raise BindError("Mesh has no faces")
-    if len(s.anchors) == 0:
-        raise BindError("No anchors: select faces in Edit Mode and click 'Add Anchor'")
-    for anc in s.anchors:
-        if not anc.vertex_group or not bridge.has_vertex_group(obj, anc.vertex_group):
-            raise BindError(f"Anchor '{anc.name}': vertex group '{anc.vertex_group}' not found")
-        if anc.empty is None:
-            raise BindError(f"Anchor '{anc.name}' has no Empty assigned")
-        if not bridge.object_in_scene(anc.empty, scene):
-            raise BindError(f"Anchor '{anc.name}': Empty '{anc.empty.name}' is not in the scene")
-
-    a = bridge.mesh_arrays(mesh)
+def _check_mesh(a: bridge.MeshArrays) -> None:
     if not np.all(np.isfinite(a.rest)):
         raise BindError("Mesh has non-finite vertex coordinates")
-    loop_poly = sm.loop_polygon_index(a.loop_start, a.loop_total)
     edge_use = np.bincount(a.loop_edge, minlength=len(a.edge_verts))
     if (edge_use > 2).any():
         raise BindError(
@@ -193,10 +104,19 @@ def gather(obj, scene) -> Inputs:
             "use Mesh > Clean Up > Merge by Distance / Degenerate Dissolve"
         )
 
+
+def _anchor_faces(obj, a: bridge.MeshArrays, method) -> tuple[list, list, list]:
+    s = settings(obj)
     names = [anc.vertex_group for anc in s.anchors]
     weights = bridge.vertex_group_weights(obj, names)
-    anchor_faces, modes, owner = [], [], np.full(len(a.tris), -1)
+    loop_poly = sm.loop_polygon_index(a.loop_start, a.loop_total)
+    faces_out, modes, owner = [], [], np.full(len(a.tris), -1)
     for i, anc in enumerate(s.anchors):
+        if anc.mode not in method.anchor_modes:
+            raise BindError(
+                f"Anchor '{anc.name}': mode '{anc.mode}' is not used by {method.label}; "
+                "set it to Follow Empty"
+            )
         polys = am.anchor_polygons(
             weights[anc.vertex_group] >= 0, a.loop_vert, loop_poly, a.n_polys
         )
@@ -209,107 +129,88 @@ def gather(obj, scene) -> Inputs:
             other = s.anchors[int(owner[faces][owner[faces] >= 0][0])].name
             raise BindError(f"Anchors '{other}' and '{anc.name}' share faces; make them disjoint")
         owner[faces] = i
-        anchor_faces.append(faces)
+        faces_out.append(faces)
         modes.append(anc.mode)
+    return faces_out, modes, names
 
-    from . import material_setup as ms  # anisotropy, region of interest (issue 4)
 
-    region = ms.region_faces(obj, a)
-    if region is not None:
-        ms.check_anchors_in_region(region, anchor_faces, [anc.name for anc in s.anchors])
-    md = _core()
+def gather(obj, scene, binding: bool = False) -> Inputs:
+    """Read everything the solver needs and validate it; raises BindError with a clear
+    message and touches nothing. ``binding``: called by Bind (the method may read the state
+    it freezes now instead of what the last bind stored)."""
+    if not bridge.is_mesh(obj):
+        raise BindError("Active object is not a mesh")
+    s = settings(obj)
+    method = method_of(obj)
+    mesh = obj.data
+    if len(mesh.polygons) == 0:
+        raise BindError("Mesh has no faces")
+    if len(s.anchors) == 0:
+        raise BindError("No anchors: select faces in Edit Mode and click 'Add Anchor'")
+    for anc in s.anchors:
+        if not anc.vertex_group or not bridge.has_vertex_group(obj, anc.vertex_group):
+            raise BindError(f"Anchor '{anc.name}': vertex group '{anc.vertex_group}' not found")
+        if anc.empty is None:
+            raise BindError(f"Anchor '{anc.name}' has no Empty assigned")
+        if not bridge.object_in_scene(anc.empty, scene):
+            raise BindError(f"Anchor '{anc.name}': Empty '{anc.empty.name}' is not in the scene")
+
+    a = bridge.mesh_arrays(mesh)
+    _check_mesh(a)
+    anchor_faces, modes, names = _anchor_faces(obj, a, method)
+    md = load_core()
     dual = np.asarray(md.dual_edges(a.tris), dtype=np.int64).reshape(-1, 2)
+    shear, bend = stiffness.stored_stiffness(obj, a, dual)
+    inp = Inputs(a, anchor_faces, modes, names, shear, bend, dual)
+    method.gather(obj, inp, binding)
+
     comp, _ = md.face_components(a.tris)
     anchored = np.unique(comp[np.concatenate(anchor_faces)])
     free = ~np.isin(comp, anchored)
-    if region is not None:  # only the region is solved: faces outside never move
-        free &= np.isin(np.arange(len(a.tris)), region)
+    if inp.region is not None:  # only the region is solved: faces outside never move
+        free &= np.isin(np.arange(len(a.tris)), inp.region)
     if free.any():
         raise BindError(
             f"{int(np.unique(a.tri_poly[free]).size)} face(s) are in a part of the mesh with no "
             "anchor: add an anchor there or separate that part"
         )
 
-    psi = bridge.read_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", a.n_polys)
-    phi = bridge.read_float_attribute(mesh, bridge.BEND_ATTR, "EDGE", len(a.edge_verts))
-    shear = bend = None
-    if psi is not None:
-        if not np.all(np.isfinite(psi)) or (psi <= 0).any():
-            raise BindError("Stiffness attribute has values <= 0: run 'Stiffness from Paint'")
-        shear = psi[a.tri_poly]
-        if phi is not None:
-            if not np.all(np.isfinite(phi)) or (phi <= 0).any():
-                raise BindError("Bending attribute has values <= 0: run 'Stiffness from Paint'")
-            bend = sm.dual_edge_bend(a.tris, dual, a.tri_poly, psi, a.edge_verts, phi)
-    axes = None
-    if s.anisotropic:
-        bend = ms.anisotropic_bend(obj, a, dual)
-        axes = ms.bound_axes(obj)
-
-    used, tris_c = am.compact(a.tris, len(a.rest))
-    fp = (
+    inp.used, inp.tris_c = am.compact(a.tris, len(a.rest))
+    inp.fp = (
         am.fingerprint(a.tris, bridge.rest_positions_f32(mesh), a.tri_poly),
-        am.fingerprint(
-            *[x for f, m, n in zip(anchor_faces, modes, names, strict=True) for x in (n, m, f)],
-            "whole mesh" if region is None else region,
-        ),
-        am.fingerprint(
-            "uniform" if shear is None else shear,
-            "default" if bend is None else bend,
-            # integers: rounding floats could give -0.0 and 0.0 (different bytes)
-            "local axes" if axes is None else np.rint(axes * 1e6).astype(np.int64),
-        ),
+        am.fingerprint(*[x for a in zip(names, modes, anchor_faces, strict=True) for x in a]),
+        am.fingerprint("uniform" if shear is None else shear, "default" if bend is None else bend),
+        am.fingerprint(method.key, *method.fingerprint(obj, inp)),
     )
-    return Inputs(a, anchor_faces, modes, shear, bend, used, tris_c, fp, region, axes)
+    return inp
 
 
-def _core():
-    try:
-        return core.load()
-    except ImportError as exc:
-        raise BindError(str(exc)) from exc
-
-
-def _build(inp: Inputs, mesh) -> Entry:
-    md = _core()
-    use_4x4, pinned = am.solve_plan(inp.modes, inp.anchor_faces, inp.arrays.tris)
-    verts = inp.arrays.rest if inp.used is None else inp.arrays.rest[inp.used]
-    if pinned is not None and inp.used is not None:
-        remap = np.full(len(inp.arrays.rest), -1, dtype=np.int64)
-        remap[inp.used] = np.arange(len(inp.used))
-        pinned = remap[pinned]
-    try:
-        d = md.MaterialDeformer(
-            verts,
-            inp.tris_c,
-            inp.anchor_faces,
-            shear=inp.shear,
-            bend=inp.bend,
-            pinned=pinned,
-            region=inp.region,
-            axes=inp.axes,
-        )
-    except (ValueError, RuntimeError) as exc:
-        raise BindError(f"Solver rejected the mesh: {exc}") from exc
+def _build(inp: Inputs, obj) -> Entry:
+    method = method_of(obj)
+    solver = method.build(inp)
     return Entry(
-        deformer=d,
+        method=method.key,
+        solver=solver,
         fp=inp.fp,
-        counts=bridge.counts(mesh),
+        counts=bridge.counts(obj.data),
         rest=inp.arrays.rest,
+        rest_f32=inp.arrays.rest.astype(np.float32),
         used=inp.used,
-        use_4x4=use_4x4,
         n_anchors=len(inp.anchor_faces),
-        extra={"axes": inp.axes},
     )
 
 
 def _stored_fp(obj) -> tuple:
     s = settings(obj)
-    return s.fp_topology, s.fp_anchors, s.fp_stiffness
+    return s.fp_topology, s.fp_anchors, s.fp_stiffness, s.fp_method
 
 
-def _diff_reason(stored, current) -> str:
-    what = ("mesh (topology or rest shape)", "anchors or region", "stiffness or axes")
+def _diff_reason(obj, stored, current) -> str:
+    try:
+        what_method = method_of(obj).fingerprint_what
+    except BindError:
+        what_method = "method"
+    what = ("mesh (topology or rest shape)", "anchors", "stiffness", what_method)
     changed = [w for w, a, b in zip(what, stored, current, strict=True) if a != b]
     return "Changed since bind: " + ", ".join(changed) + " - click Bind again"
 
@@ -318,30 +219,38 @@ def _diff_reason(stored, current) -> str:
 
 
 def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> Entry:
+    """Build the active method's solver and make the current Empty transforms the bind pose.
+    Atomic: nothing on the object changes unless every step succeeds."""
     progress = progress or (lambda _f, _t: None)
     progress(0.05, "Material Deform: reading mesh")
-    from . import material_setup
-
-    material_setup.store_bind_axes(obj)  # the axes Empty's orientation now
-    inp = gather(obj, scene)
-    progress(0.3, "Material Deform: factorizing (precompute)")
-    entry = _build(inp, obj.data)
-    progress(0.9, "Material Deform: writing shape key")
+    inp = gather(obj, scene, binding=True)
+    progress(0.3, "Material Deform: precomputing the solver")
+    entry = _build(inp, obj)
     s = settings(obj)
+    kb_name = s.output_key_name or bridge.OUTPUT_KEY
+    if bridge.output_key(obj, kb_name) is None and bridge.output_key(obj) is not None:
+        kb_name = bridge.OUTPUT_KEY  # an old key of the default name: reuse it
+    progress(0.9, "Material Deform: writing shape key")
+    # Everything above only read; from here on only writes that cannot fail on bad input.
+    method_of(obj).commit(obj, inp)
     for anc in s.anchors:
         anc.bind_matrix = bridge.world_matrix(anc.empty).ravel().tolist()
-    s.fp_topology, s.fp_anchors, s.fp_stiffness = inp.fp
+    s.obj_bind_matrix = bridge.world_matrix(obj).ravel().tolist()
+    s.fp_topology, s.fp_anchors, s.fp_stiffness, s.fp_method = inp.fp
     had_keys = obj.data.shape_keys is not None
-    kb, created = bridge.ensure_output_key(obj)
+    kb, created = bridge.ensure_output_key(obj, kb_name)
     if not s.bound or not had_keys:
         s.created_basis = created
+    s.output_key_name = kb.name
     # a fresh bind starts at the rest shape exactly
-    bridge.write_key(obj, kb, bridge.rest_positions_f32(obj.data))
+    bridge.write_key(obj, kb, entry.rest_f32)
     s.bound = True
     s.rebind_reason = ""
     key = obj.as_pointer()
+    entry.key_pointer = kb.as_pointer()
     _cache[key] = entry
     _stale.pop(key, None)
+    _unsettled.discard(key)
     entry.last_key = _matrix_key(obj, None)
     progress(1.0, "")
     return entry
@@ -350,14 +259,17 @@ def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> En
 def unbind(obj) -> None:
     """Remove the output and forget the bind: the mesh is back to its rest shape bit for bit."""
     s = settings(obj)
-    bridge.remove_output(obj, remove_basis=s.created_basis)
+    key = obj.as_pointer()
+    entry = _cache.get(key)
+    name = s.output_key_name or bridge.OUTPUT_KEY
+    bridge.remove_output(obj, s.created_basis, name, entry.key_pointer if entry else 0)
     s.bound = False
     s.rebind_reason = ""
     s.created_basis = False
-    s.fp_topology = s.fp_anchors = s.fp_stiffness = ""
-    key = obj.as_pointer()
+    s.fp_topology = s.fp_anchors = s.fp_stiffness = s.fp_method = ""
     _cache.pop(key, None)
     _stale.pop(key, None)
+    _unsettled.discard(key)
 
 
 def entry_for(obj, scene) -> Entry:
@@ -376,6 +288,7 @@ def entry_for(obj, scene) -> Entry:
         entry is not None
         and entry.fp == _stored_fp(obj)
         and entry.counts == bridge.counts(obj.data)
+        and entry.method == s.method
     ):
         return entry
     _cache.pop(key, None)
@@ -387,9 +300,9 @@ def entry_for(obj, scene) -> Entry:
         _stale[key] = f"Cannot update: {exc}"
         raise BindError(_stale[key]) from exc
     if inp.fp != _stored_fp(obj):
-        _stale[key] = _diff_reason(_stored_fp(obj), inp.fp)
+        _stale[key] = _diff_reason(obj, _stored_fp(obj), inp.fp)
         raise BindError(_stale[key])
-    entry = _build(inp, obj.data)
+    entry = _build(inp, obj)
     _cache[key] = entry
     _stale.pop(key, None)
     return entry
@@ -411,7 +324,7 @@ def full_check(obj, scene) -> str:
         _cache.pop(key, None)
         return _stale[key]
     if inp.fp != _stored_fp(obj):
-        _stale[key] = _diff_reason(_stored_fp(obj), inp.fp)
+        _stale[key] = _diff_reason(obj, _stored_fp(obj), inp.fp)
         _cache.pop(key, None)
         return _stale[key]
     _stale.pop(key, None)
@@ -428,7 +341,7 @@ def _anchor_empties(obj, scene):
     return out
 
 
-def _matrix_key(obj, depsgraph, scene=None) -> bytes:
+def _matrix_key(obj, depsgraph) -> bytes:
     mats = [bridge.world_matrix(obj, depsgraph)]
     for anc in settings(obj).anchors:
         if anc.empty is not None:
@@ -438,35 +351,60 @@ def _matrix_key(obj, depsgraph, scene=None) -> bytes:
     return b"".join(b"-" if m is None else m.tobytes() for m in mats)
 
 
-def _check_axes(obj, entry, depsgraph) -> None:
-    """Rebind is needed if the anisotropy axes moved since bind. The axes come from an SVD
-    (LAPACK, which keeps an OpenBLAS thread spinning in bpy 4.x), so they are recomputed only
-    when the object's or the axes Empty's matrix changed since the last check."""
-    from . import material_setup
-
-    emp = settings(obj).axes_empty
-    mats = [bridge.world_matrix(o, depsgraph) for o in (obj, emp) if o is not None]
-    key = b"".join(m.tobytes() for m in mats if m is not None)
-    if entry.extra.get("axes_checked") == key:
-        return
-    now_axes = material_setup.axes(obj, depsgraph)
-    if now_axes is None or not np.allclose(now_axes, entry.extra["axes"], atol=1e-6):
-        mark_stale(obj, "Axes Empty changed since bind - click Bind again")
-        raise BindError("Axes Empty changed since bind - click Bind again")
-    entry.extra["axes_checked"] = key
-
-
-def compute(obj, scene, depsgraph=None) -> np.ndarray:
-    """Deformed positions (n,3) float64 for the current Empty transforms."""
-    entry = entry_for(obj, scene)
+def _stop(obj, reason: str) -> BindError:
+    """Record why this object cannot update until it is bound again; returns the error."""
     key = obj.as_pointer()
-    if bridge.counts(obj.data) != entry.counts:
-        _stale[key] = _diff_reason(_stored_fp(obj), ("?", *_stored_fp(obj)[1:]))
-        _cache.pop(key, None)
-        raise BindError(_stale[key])
+    _stale[key] = reason
+    _cache.pop(key, None)
+    return BindError(reason)
+
+
+def _check_rest(obj, entry: Entry) -> None:
+    """The live path's guard against a rest shape changed under the bind (Apply Scale, a
+    script writing the Basis, vertices reordered): the Basis is compared with the bound rest
+    bit for bit on every update (about 30 us at 25k vertices, docs/performance.md)."""
+    buf = entry.extra.get("rest_buf")
+    if buf is None:
+        buf = entry.extra["rest_buf"] = np.empty_like(entry.rest_f32)
+    if bridge.counts(obj.data) != entry.counts or not bridge.rest_unchanged(
+        obj.data, entry.rest_f32, buf
+    ):
+        raise _stop(
+            obj,
+            "Rest shape changed since bind (Apply Scale, a script, or reordered vertices) - "
+            "click Bind again",
+        )
+
+
+def _output_key(obj, entry: Entry):
+    """The output key block, followed through a rename. Never the reference key."""
+    s = settings(obj)
+    kb = bridge.output_key(obj, s.output_key_name or bridge.OUTPUT_KEY, entry.key_pointer)
+    if kb is None:
+        raise _stop(
+            obj,
+            f"Output shape key '{s.output_key_name}' is gone (deleted or renamed before the "
+            "file was saved): click Bind to create it again",
+        )
+    if bridge.is_reference_key(obj, kb):
+        raise _stop(
+            obj,
+            f"The Basis shape key was removed, so '{kb.name}' became the rest shape: undo "
+            "(Ctrl+Z), or Reset and Bind again",
+        )
+    if kb.name != s.output_key_name:
+        s.output_key_name = kb.name  # renamed by the user: keep writing to the same key
+    entry.key_pointer = kb.as_pointer()
+    return kb
+
+
+def transforms_now(obj, entry: Entry, scene, depsgraph=None) -> np.ndarray | None:
+    """(k,4,4) motion of every anchor since bind in the mesh's local space, None at the bind
+    pose exactly. Anchor faces follow their Empty in world space: for a vertex at local x,
+    ``inv(M_obj) M_now inv(M_bind) M_obj_bind x``, right also for Empties parented to the mesh
+    and for an object moved or animated since bind."""
+    s = settings(obj)
     ancs = _anchor_empties(obj, scene)
-    if entry.extra.get("axes") is not None:
-        _check_axes(obj, entry, depsgraph)
     if len(ancs) != entry.n_anchors:
         raise BindError("Anchors changed since bind - click Bind again")
     mats = [bridge.world_matrix(a.empty, depsgraph) for a in ancs]
@@ -481,35 +419,83 @@ def compute(obj, scene, depsgraph=None) -> np.ndarray:
         raise BindError("Object is not evaluated here")
     now = np.stack(mats)
     bind_m = np.array([tuple(a.bind_matrix) for a in ancs], dtype=np.float64).reshape(-1, 4, 4)
-    if np.array_equal(now, bind_m):
+    m_obj_bind = np.array(tuple(s.obj_bind_matrix), dtype=np.float64).reshape(4, 4)
+    if not m_obj_bind.any():  # bound before the object's matrix was kept: as if it never moved
+        m_obj_bind = m_obj
+    if np.array_equal(now, bind_m) and np.array_equal(m_obj, m_obj_bind):
+        return None
+    try:
+        return entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m, m_obj_bind)
+    except ValueError as exc:  # e.g. the object scaled to zero
+        raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
+
+
+def compute(obj, scene, depsgraph=None, budget: int | str | None = "live") -> np.ndarray:
+    """Deformed positions (n,3) float64 for the current Empty transforms. ``budget``: "live"
+    (the method's per-update iteration budget), an int, or None (run to convergence)."""
+    entry = entry_for(obj, scene)
+    key = obj.as_pointer()
+    _check_rest(obj, entry)
+    method = method_of(obj)
+    try:
+        method.check_live(obj, entry, depsgraph)
+    except BindError as exc:
+        mark_stale(obj, str(exc))
+        raise
+    t = transforms_now(obj, entry, scene, depsgraph)
+    if t is None:
         # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
         # round-off): re-evaluating it after undo or reloading leaves the key as it was
+        entry.state.clear()
+        _unsettled.discard(key)
         return entry.rest.copy()
+    if budget == "live":
+        budget = method.live_budget(obj)
     try:
-        t = entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m)
-        x = entry.deformer.deform(t if entry.use_4x4 else np.ascontiguousarray(t[:, :3, :3]))
+        res = method.solve(entry.solver, t, entry.state, budget)
     except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
         raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
+    if res.done:
+        _unsettled.discard(key)
+    else:
+        _unsettled.add(key)
     if entry.used is None:
-        return x
+        return res.positions
     out = entry.rest.copy()
-    out[entry.used] = x
+    out[entry.used] = res.positions
     return out
 
 
-def apply(obj, scene, depsgraph=None, force: bool = False) -> bool:
-    """Write the deformation into the output shape key if any driver moved. True if written."""
+def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> bool:
+    """Write the deformation into the output shape key if any driver moved (or the last solve
+    had not converged yet). True if written."""
     entry = entry_for(obj, scene)
     mkey = _matrix_key(obj, depsgraph)
-    kb = bridge.output_key(obj)
-    if not force and kb is not None and mkey == entry.last_key:
+    kb = _output_key(obj, entry)
+    key = obj.as_pointer()
+    if not force and mkey == entry.last_key and key not in _unsettled:
         return False
-    x = compute(obj, scene, depsgraph)
-    if kb is None:
-        kb, _ = bridge.ensure_output_key(obj)
+    x = compute(obj, scene, depsgraph, budget)
     bridge.write_key(obj, kb, x)
     entry.last_key = mkey
     return True
+
+
+def settle(obj, scene, depsgraph=None) -> None:
+    """Solve the current pose to convergence and write it (Settle; plain update for direct
+    methods)."""
+    apply(obj, scene, depsgraph, force=True, budget=None)
+
+
+def record_failure(obj, reason: str) -> None:
+    """Keep ``reason`` as why ``obj`` does not update (shown in the panel)."""
+    _stale[obj.as_pointer()] = reason
+
+
+def unsettled() -> bool:
+    """True while some object's live result is still converging: the handlers then keep
+    calling :func:`live_update` from a timer until every result has settled."""
+    return bool(_unsettled)
 
 
 def live_update(scene, depsgraph=None) -> None:
@@ -531,40 +517,8 @@ def live_update(scene, depsgraph=None) -> None:
         try:
             apply(obj, scene, depsgraph)
         except Exception as exc:  # a handler must never take Blender down
+            _unsettled.discard(key)
             msg = str(exc) if isinstance(exc, BindError) else f"Update failed: {exc}"
             if _stale.get(key) != msg:
                 print(f"Material Deform: '{obj.name}' not updated: {msg}")  # background runs
             _stale[key] = msg
-
-
-def prepare_scene(scene) -> None:
-    """Build the solvers of all bound objects (after loading a file), recording stale ones."""
-    for obj in scene.objects:
-        if obj.type == "MESH" and settings(obj).bound:
-            try:
-                entry_for(obj, scene)
-            except BindError:
-                pass  # reason is kept in _stale and shown in the panel
-            except Exception as exc:  # never break file loading
-                _stale[obj.as_pointer()] = f"Rebuild failed: {exc}"
-
-
-def bake(obj, scene, frames, progress=None) -> list[str]:
-    """Write one keyframed shape key per frame; turns Live off and mutes the live output."""
-    progress = progress or (lambda _f, _t: None)
-    entry_for(obj, scene)
-    s = settings(obj)
-    names = []
-    frames = list(frames)
-    old = scene.frame_current
-    s.live = False
-    try:
-        for i, f in enumerate(frames):
-            bridge.frame_set(scene, f)
-            dg = bridge.evaluated_depsgraph_from_scene(scene)
-            names.append(bridge.bake_key(obj, f, compute(obj, scene, dg)))
-            progress((i + 1) / len(frames), f"Material Deform: baking frame {f}")
-    finally:
-        bridge.frame_set(scene, old)
-    bridge.set_output_value(obj, 0.0)
-    return names

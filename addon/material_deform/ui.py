@@ -5,6 +5,7 @@ from __future__ import annotations
 import bpy
 
 from . import core, session
+from .model import BindError
 from .stiffness_map import stiffness_range
 
 
@@ -43,13 +44,6 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
         box.prop(s, "stiffness_span")
         lo, hi = stiffness_range(s.stiffness_span)
         box.label(text=f"paint 0 = {lo:.0e} (flexible)  ..  1 = {hi:g} (stiff)")
-        box.prop(s, "anisotropic")
-        if s.anisotropic:
-            box.prop(s, "axes_empty")
-            if s.stiffness_source == "VERTEX_GROUP":
-                box.label(text=f"paint '{s.stiffness_group} X' / Y / Z per rotation axis")
-            else:
-                box.label(text="paint R / G / B per rotation axis x / y / z")
         row = box.row(align=True)
         row.operator("mesh.material_deform_stiffness_from_paint")
         row.operator("mesh.material_deform_show_stiffness", text="Show", icon="HIDE_OFF")
@@ -76,7 +70,14 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
 
         box = layout.box()
         box.label(text="Deform", icon="MOD_SIMPLEDEFORM")
-        box.prop_search(s, "region_group", obj, "vertex_groups", icon="SELECT_SET")
+        box.prop(s, "method", text="")
+        try:
+            method = session.method_of(obj)
+        except BindError as exc:
+            box.label(text=str(exc), icon="ERROR")
+            method = None
+        if method is not None:
+            method.draw(box.column(), obj)
         row = box.row(align=True)
         row.operator("mesh.material_deform_bind", text="Rebind" if s.bound else "Bind")
         row.operator("mesh.material_deform_reset", icon="LOOP_BACK")
@@ -89,6 +90,8 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
             row = box.row(align=True)
             row.prop(s, "live", toggle=True)
             row.operator("mesh.material_deform_update")
+            if method is not None and method.iterative:
+                row.operator("mesh.material_deform_settle")
 
         box = layout.box()
         box.label(text="Bake", icon="REC")
@@ -101,11 +104,4 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
 classes = (MESH_UL_material_deform_anchors, VIEW3D_PT_material_deform)
 
 
-def register():
-    for cls in classes:
-        bpy.utils.register_class(cls)
-
-
-def unregister():
-    for cls in reversed(classes):
-        bpy.utils.unregister_class(cls)
+register, unregister = bpy.utils.register_classes_factory(classes)

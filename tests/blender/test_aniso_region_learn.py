@@ -271,7 +271,7 @@ def test_region_changes_mark_bind_stale():
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
     obj.vertex_groups["Region"].remove([v.index for v in obj.data.vertices if v.co.z == 0.0])
     # repainting the region group: detected by the fingerprint
-    expect_error(bpy.ops.mesh.material_deform_update, "anchors or region")
+    expect_error(bpy.ops.mesh.material_deform_update, "region")
     assert bpy.ops.mesh.material_deform_reset() == {"FINISHED"}
     obj.material_deform.region_group = ""
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
