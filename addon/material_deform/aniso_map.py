@@ -137,15 +137,16 @@ def face_paint_to_vertices(face_paint, loop_vert, loop_poly, n_vertices: int, fi
     return out
 
 
-def learn_key_names(keys, name_filter: str = "") -> list[str]:
+def learn_key_names(keys, name_filter: str = "", output: str = OUTPUT_KEY) -> list[str]:
     """Shape keys used as example poses: ``keys`` is a list of (name, muted, is_reference).
     Takes every key except the reference (Basis), muted keys (the mute checkbox in the shape
-    key list deselects a key) and the add-on's own output / bake keys, whose name contains
-    ``name_filter`` (case-insensitive; empty = all)."""
+    key list deselects a key) and the add-on's own output (named ``output``, it may have been
+    renamed) and bake keys, whose name contains ``name_filter`` (case-insensitive; empty =
+    all)."""
     f = name_filter.strip().lower()
     out = []
     for name, muted, is_ref in keys:
-        if is_ref or muted or name == OUTPUT_KEY or name.startswith(BAKE_PREFIX):
+        if is_ref or muted or name in (output, OUTPUT_KEY) or name.startswith(BAKE_PREFIX):
             continue
         if f and f not in name.lower():
             continue

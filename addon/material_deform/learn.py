@@ -27,7 +27,7 @@ def learn_from_shape_keys(obj, progress: Callable[[float, str], None] | None = N
     mesh = obj.data
     if len(mesh.polygons) == 0:
         raise BindError("Mesh has no faces")
-    names = amap.learn_key_names(bridge.shape_key_info(obj), s.learn_filter)
+    names = amap.learn_key_names(bridge.shape_key_info(obj), s.learn_filter, s.output_key_name)
     if not names:
         extra = f" matching '{s.learn_filter}'" if s.learn_filter.strip() else ""
         raise BindError(

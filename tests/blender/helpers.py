@@ -4,6 +4,7 @@ import math
 
 import bpy
 import numpy as np
+import pytest
 
 
 def tube(name="Bar", rings=21, length=4.0, radius=0.5, sides=8, square=True):
@@ -135,3 +136,102 @@ def face_rotation_angles(rest_v, def_v, tris):
 
 def update():
     bpy.context.view_layer.update()
+
+
+# --- paint and attributes ---------------------------------------------------------------------
+
+
+def paint(obj, name, weight_of_vertex):
+    vg = obj.vertex_groups.get(name) or obj.vertex_groups.new(name=name)
+    for v in obj.data.vertices:
+        vg.add([v.index], float(weight_of_vertex(v)), "REPLACE")
+    return vg
+
+
+def attr(obj, name, width=1):
+    a = obj.data.attributes[name]
+    out = np.empty(len(a.data) * width, np.float32)
+    a.data.foreach_get("vector" if width == 3 else "value", out)
+    return out.reshape(-1, width) if width > 1 else out
+
+
+def group_weights(obj, name):
+    vg = obj.vertex_groups[name]
+    return np.array([vg.weight(i) for i in range(len(obj.data.vertices))])
+
+
+def edge_faces(me):
+    out = {}
+    for p in me.polygons:
+        for k in p.edge_keys:
+            out.setdefault(k, []).append(p.index)
+    return out
+
+
+# --- checks -----------------------------------------------------------------------------------
+
+
+def snapshot(obj):
+    me = obj.data
+    keys = me.shape_keys
+    return (
+        rest(obj).tobytes(),
+        None if keys is None else [k.name for k in keys.key_blocks],
+        len(me.vertices),
+        len(me.polygons),
+        [a.name for a in me.attributes],
+    )
+
+
+def expect_error(op, match, **kw):
+    with pytest.raises(RuntimeError, match=match):
+        op(**kw)
+
+
+# --- the panel, drawn into a recording layout ---------------------------------------------------
+
+
+class RecordingLayout:
+    def __init__(self, log):
+        self.log = log
+
+    def _check(self, data, prop):
+        assert prop in data.bl_rna.properties, f"{data!r} has no property {prop!r}"
+        self.log.append(prop)
+
+    def prop(self, data, prop, **_kw):
+        self._check(data, prop)
+
+    def prop_search(self, data, prop, search_data, search_prop, **_kw):
+        self._check(data, prop)
+        self._check(search_data, search_prop)
+
+    def operator(self, idname, **_kw):
+        mod, name = idname.split(".")
+        assert hasattr(getattr(bpy.ops, mod), name), idname
+        self.log.append(idname)
+
+    def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
+        assert hasattr(bpy.types, list_type), list_type
+        self._check(data, prop)
+        self._check(active_data, active_prop)
+
+    def label(self, **_kw):
+        pass
+
+    def box(self):
+        return self
+
+    def row(self, **_kw):
+        return self
+
+    def column(self, **_kw):
+        return self
+
+
+def draw_panel():
+    log = []
+    panel = bpy.types.VIEW3D_PT_material_deform
+    fake = type("P", (), {"layout": RecordingLayout(log)})()
+    panel.draw(fake, bpy.context)
+    return log

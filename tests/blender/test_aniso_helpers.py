@@ -78,4 +78,5 @@ def test_learn_key_names_skip_basis_muted_own_and_filter():
     assert amap.learn_key_names(keys) == ["Walk 1", "Run"]
     assert amap.learn_key_names(keys, " WALK ") == ["Walk 1"]
     assert amap.learn_key_names(keys, "jump") == []
+    assert amap.learn_key_names(keys, output="Run") == ["Walk 1"]  # a renamed output key
     assert amap.axis_group_names("Stiffness") == ("Stiffness X", "Stiffness Y", "Stiffness Z")

@@ -2,25 +2,17 @@
 
 import bpy
 import numpy as np
-import pytest
-from helpers import add_anchor, mesh_object, output, rest, tube, two_end_anchors, update
-
-
-def snapshot(obj):
-    me = obj.data
-    keys = me.shape_keys
-    return (
-        rest(obj).tobytes(),
-        None if keys is None else [k.name for k in keys.key_blocks],
-        len(me.vertices),
-        len(me.polygons),
-        [a.name for a in me.attributes],
-    )
-
-
-def expect_error(op, match, **kw):
-    with pytest.raises(RuntimeError, match=match):
-        op(**kw)
+from helpers import (
+    add_anchor,
+    expect_error,
+    mesh_object,
+    output,
+    rest,
+    snapshot,
+    tube,
+    two_end_anchors,
+    update,
+)
 
 
 def test_no_anchors():

@@ -7,29 +7,17 @@ from helpers import (
     activate,
     add_anchor,
     anchor_vertices,
+    attr,
     evaluated,
     face_rotation_angles,
     output,
+    paint,
     rest,
     triangles,
     tube,
     two_end_anchors,
     update,
 )
-
-
-def paint_group(obj, name, weight_of_vertex):
-    vg = obj.vertex_groups.new(name=name)
-    for v in obj.data.vertices:
-        vg.add([v.index], float(weight_of_vertex(v)), "REPLACE")
-    return vg
-
-
-def face_attr(obj, name):
-    a = obj.data.attributes[name]
-    out = np.empty(len(a.data), np.float32)
-    a.data.foreach_get("value", out)
-    return out
 
 
 def test_operators_registered():
@@ -41,10 +29,10 @@ def test_operators_registered():
 def test_vertex_group_paint_to_stiffness_attributes():
     obj = tube(rings=5)
     # weight = (z + 2) / 4, i.e. 0 at the bottom and 1 at the top
-    paint_group(obj, "Stiffness", lambda v: (v.co.z + 2.0) / 4.0)
+    paint(obj, "Stiffness", lambda v: (v.co.z + 2.0) / 4.0)
     assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
-    psi = face_attr(obj, "md_shear_stiffness")
-    phi = face_attr(obj, "md_bend_stiffness")
+    psi = attr(obj, "md_shear_stiffness")
+    phi = attr(obj, "md_bend_stiffness")
     me = obj.data
     assert obj.data.attributes["md_shear_stiffness"].domain == "FACE"
     assert obj.data.attributes["md_bend_stiffness"].domain == "EDGE"
@@ -64,7 +52,7 @@ def test_vertex_group_paint_to_stiffness_attributes():
     # span is configurable
     obj.material_deform.stiffness_span = 4.0
     bpy.ops.mesh.material_deform_stiffness_from_paint()
-    assert face_attr(obj, "md_shear_stiffness")[0] == pytest.approx(1e-4, rel=1e-6)
+    assert attr(obj, "md_shear_stiffness")[0] == pytest.approx(1e-4, rel=1e-6)
 
 
 def test_color_attribute_paint_and_show_stiffness():
@@ -75,7 +63,7 @@ def test_color_attribute_paint_and_show_stiffness():
         ca.data[i].color = (g, g, g, 1.0)  # 0 and 1 are the same in linear and sRGB
     obj.material_deform.stiffness_source = "COLOR_ATTRIBUTE"
     assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
-    psi = face_attr(obj, "md_shear_stiffness")
+    psi = attr(obj, "md_shear_stiffness")
     # (colour goes through Blender's linear -> sRGB conversion: 1.0 comes back as 0.99993)
     assert psi[1] == pytest.approx(1.0, rel=1e-3)  # white top cap
     assert psi[0] == pytest.approx(1e-3, rel=1e-3)  # black bottom cap
