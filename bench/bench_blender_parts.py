@@ -2,7 +2,8 @@
 
 Times, on the same tube and anchors as bench_blender.py and with no Laplacian object:
 Blender's re-evaluation after the add-on writes and tags the output shape key, the handler body
-(``session.apply``), and the full live update.
+(``session.apply``), the part of it that checks the Basis against the bound rest, and the full
+live update.
 
 Usage (see docs/performance.md):
   MD_SYS_PATH=build/addon/legacy/material_deform/_vendor .venv-bpy/bin/python \
@@ -70,6 +71,8 @@ def main():
             session.apply(obj, scene, None, force=True)
 
         handler = median_ms(handler_step, args.reps)
+        entry = session.entry_for(obj, scene)
+        rest_check = median_ms(lambda i: session._check_rest(obj, entry), 5 * args.reps)
         s.live = True
         vl.update()
         full = median_ms(lambda i: (bb.wiggle(empty, i), vl.update(), vl.update()), args.reps)
@@ -82,6 +85,7 @@ def main():
     )
     print(f"re-evaluation after the shape-key write (ms): {reeval:.2f}")
     print(f"handler body, session.apply (ms):           {handler:.2f}")
+    print(f"  of which the rest check (ms):              {rest_check:.3f}")
     print(f"full live update (ms):                       {full:.2f}")
 
 
