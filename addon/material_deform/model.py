@@ -36,9 +36,8 @@ class Inputs:
     anchor_faces: list  # per anchor: (f_a,) triangle indices
     modes: list  # per anchor: its mode ("POSITION", "ROTATION", ...)
     names: list  # per anchor: its vertex group
-    shear: np.ndarray | None  # (m,) per triangle, from the stored stiffness; None = uniform
-    bend: np.ndarray | None  # (E,) per dual edge; None = derived from shear
-    dual: np.ndarray  # (E,2) dual edges of the triangles
+    psi: np.ndarray | None  # (P,) stored shear stiffness per polygon; None = never computed
+    phi: np.ndarray | None  # (e,) stored bending stiffness per mesh edge; None = from psi
     used: np.ndarray | None = None  # vertices kept after dropping loose ones
     tris_c: np.ndarray | None = None
     region: np.ndarray | None = None  # triangles solved for; None = all (set by a method)
@@ -53,6 +52,31 @@ class Inputs:
         remap = np.full(len(self.arrays.rest), -1, dtype=np.int64)
         remap[self.used] = np.arange(len(self.used))
         return remap[v]
+
+    @property
+    def dual(self) -> np.ndarray:
+        """(E,2) dual edges of the triangles (computed on first use: only builds need it)."""
+        if "dual" not in self.extra:
+            md = load_core()
+            self.extra["dual"] = np.asarray(md.dual_edges(self.arrays.tris), np.int64).reshape(
+                -1, 2
+            )
+        return self.extra["dual"]
+
+    @property
+    def shear(self) -> np.ndarray | None:
+        """(m,) shear stiffness per triangle; None = uniform."""
+        return None if self.psi is None else self.psi[self.arrays.tri_poly]
+
+    @property
+    def bend(self) -> np.ndarray | None:
+        """(E,) bending stiffness per dual edge; None = derived from shear by the solver."""
+        if self.psi is None or self.phi is None:
+            return None
+        from .stiffness_map import dual_edge_bend
+
+        a = self.arrays
+        return dual_edge_bend(a.tris, self.dual, a.tri_poly, self.psi, a.edge_verts, self.phi)
 
     @property
     def verts_c(self) -> np.ndarray:

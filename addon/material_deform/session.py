@@ -134,10 +134,12 @@ def _anchor_faces(obj, a: bridge.MeshArrays, method) -> tuple[list, list, list]:
     return faces_out, modes, names
 
 
-def gather(obj, scene, binding: bool = False) -> Inputs:
+def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
     """Read everything the solver needs and validate it; raises BindError with a clear
     message and touches nothing. ``binding``: called by Bind (the method may read the state
-    it freezes now instead of what the last bind stored)."""
+    it freezes now instead of what the last bind stored). ``build=False``: only what the
+    fingerprints need (a full check of an unchanged bind skips the checks that passed at bind
+    on this very data, which costs most of the time on large meshes)."""
     if not bridge.is_mesh(obj):
         raise BindError("Active object is not a mesh")
     s = settings(obj)
@@ -158,14 +160,26 @@ def gather(obj, scene, binding: bool = False) -> Inputs:
     a = bridge.mesh_arrays(mesh)
     _check_mesh(a)
     anchor_faces, modes, names = _anchor_faces(obj, a, method)
-    md = load_core()
-    dual = np.asarray(md.dual_edges(a.tris), dtype=np.int64).reshape(-1, 2)
-    shear, bend = stiffness.stored_stiffness(obj, a, dual)
-    inp = Inputs(a, anchor_faces, modes, names, shear, bend, dual)
+    psi, phi = stiffness.stored_stiffness(obj, a)
+    inp = Inputs(a, anchor_faces, modes, names, psi, phi)
     method.gather(obj, inp, binding)
+    inp.fp = (
+        am.fingerprint(a.tris, bridge.rest_positions_f32(mesh), a.tri_poly),
+        am.fingerprint(*[x for a in zip(names, modes, anchor_faces, strict=True) for x in a]),
+        am.fingerprint("uniform" if psi is None else psi, "default" if phi is None else phi),
+        am.fingerprint(method.key, *method.fingerprint(obj, inp)),
+    )
+    if build:
+        _check_components(inp)
+        inp.used, inp.tris_c = am.compact(a.tris, len(a.rest))
+    return inp
 
-    comp, _ = md.face_components(a.tris)
-    anchored = np.unique(comp[np.concatenate(anchor_faces)])
+
+def _check_components(inp: Inputs) -> None:
+    """Every face the solver moves must be in a part of the mesh that an anchor reaches."""
+    a = inp.arrays
+    comp, _ = load_core().face_components(a.tris)
+    anchored = np.unique(comp[np.concatenate(inp.anchor_faces)])
     free = ~np.isin(comp, anchored)
     if inp.region is not None:  # only the region is solved: faces outside never move
         free &= np.isin(np.arange(len(a.tris)), inp.region)
@@ -174,15 +188,6 @@ def gather(obj, scene, binding: bool = False) -> Inputs:
             f"{int(np.unique(a.tri_poly[free]).size)} face(s) are in a part of the mesh with no "
             "anchor: add an anchor there or separate that part"
         )
-
-    inp.used, inp.tris_c = am.compact(a.tris, len(a.rest))
-    inp.fp = (
-        am.fingerprint(a.tris, bridge.rest_positions_f32(mesh), a.tri_poly),
-        am.fingerprint(*[x for a in zip(names, modes, anchor_faces, strict=True) for x in a]),
-        am.fingerprint("uniform" if shear is None else shear, "default" if bend is None else bend),
-        am.fingerprint(method.key, *method.fingerprint(obj, inp)),
-    )
-    return inp
 
 
 def _build(inp: Inputs, obj) -> Entry:
@@ -318,7 +323,7 @@ def full_check(obj, scene) -> str:
         _stale[key] = s.rebind_reason
         return s.rebind_reason
     try:
-        inp = gather(obj, scene)
+        inp = gather(obj, scene, build=False)
     except BindError as exc:
         _stale[key] = f"Cannot update: {exc}"
         _cache.pop(key, None)

@@ -117,10 +117,11 @@ def _check_values(values, what: str) -> None:
         )
 
 
-def stored_stiffness(obj, a: bridge.MeshArrays, dual) -> tuple[np.ndarray | None, ...]:
-    """(shear (m,) per triangle, bend (E,) per dual edge) from the stored attributes; None for
-    a field that was never computed (uniform shear; bending derived from shear). An attribute of
-    our name with the wrong type or domain is an error, not silently ignored."""
+def stored_stiffness(obj, a: bridge.MeshArrays) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """(psi (P,) per polygon, phi (e,) per mesh edge) as stored by Stiffness from Paint or
+    Learn, validated; None for a field that was never computed (uniform shear; bending derived
+    from shear). An attribute of our name with the wrong type or domain is an error, not
+    silently ignored."""
     mesh = obj.data
     for name, domain, dtype in (
         (bridge.SHEAR_ATTR, "FACE", "FLOAT"),
@@ -137,11 +138,9 @@ def stored_stiffness(obj, a: bridge.MeshArrays, dual) -> tuple[np.ndarray | None
         return None, None
     _check_values(psi, "Stiffness")
     phi = bridge.read_float_attribute(mesh, bridge.BEND_ATTR, "EDGE", len(a.edge_verts))
-    bend = None
     if phi is not None:
         _check_values(phi, "Bending")
-        bend = sm.dual_edge_bend(a.tris, dual, a.tri_poly, psi, a.edge_verts, phi)
-    return psi[a.tri_poly], bend
+    return psi, phi
 
 
 def show_stiffness(obj) -> np.ndarray:

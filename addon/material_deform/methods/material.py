@@ -52,8 +52,8 @@ def bound_axes(obj) -> np.ndarray | None:
         raise BindError("Stored anisotropy axes are invalid - click Bind again") from exc
 
 
-def anisotropic_bend(obj, a: bridge.MeshArrays, dual) -> np.ndarray:
-    """(E,3) bending stiffness per dual edge from the stored per-axis edge attribute."""
+def stored_axis_bend(obj, a: bridge.MeshArrays) -> np.ndarray:
+    """(e,3) per-axis bending stiffness per mesh edge, as stored, validated."""
     phi3 = bridge.read_vector_attribute(obj.data, bridge.BEND_AXES_ATTR, "EDGE", len(a.edge_verts))
     if phi3 is None:
         raise BindError(
@@ -66,6 +66,11 @@ def anisotropic_bend(obj, a: bridge.MeshArrays, dual) -> np.ndarray:
         )
     if (phi3 <= 0).any():
         raise BindError("Per-axis bending attribute has values <= 0: run 'Stiffness from Paint'")
+    return phi3
+
+
+def dual_axis_bend(a: bridge.MeshArrays, dual, phi3) -> np.ndarray:
+    """(E,3) bending stiffness per dual edge from the per-mesh-edge (e,3) one."""
     lp = sm.loop_polygon_index(a.loop_start, a.loop_total)
     return amap.dual_edge_bend_axes(
         a.tris, dual, a.tri_poly, a.edge_verts, phi3, a.loop_edge, lp, a.n_polys
@@ -119,7 +124,7 @@ class MaterialMethod(Method):
             check_anchors_in_region(region, inputs.anchor_faces, inputs.names)
         inputs.region = region
         if s.anisotropic:
-            inputs.extra["bend"] = anisotropic_bend(obj, a, inputs.dual)
+            inputs.extra["phi3"] = stored_axis_bend(obj, a)
             if binding and s.axes_empty is not None:
                 # the axes Empty's orientation now, as it will read back from bind_axes
                 now = axes(obj).astype(np.float32).astype(np.float64)
@@ -136,7 +141,7 @@ class MaterialMethod(Method):
         ax = inputs.extra.get("axes")
         return [
             "whole mesh" if inputs.region is None else inputs.region,
-            inputs.extra.get("bend", "isotropic"),
+            inputs.extra.get("phi3", "isotropic"),
             # integers: rounding floats could give -0.0 and 0.0 (different bytes)
             "local axes" if ax is None else np.rint(ax * 1e6).astype(np.int64),
         ]
@@ -148,13 +153,15 @@ class MaterialMethod(Method):
         use_4x4, pinned = am.solve_plan(inputs.modes, inputs.anchor_faces, inputs.arrays.tris)
         if pinned is not None:
             pinned = inputs.compact_index(pinned)
+        phi3 = inputs.extra.get("phi3")
+        bend = inputs.bend if phi3 is None else dual_axis_bend(inputs.arrays, inputs.dual, phi3)
         try:
             d = md.MaterialDeformer(
                 inputs.verts_c,
                 inputs.tris_c,
                 inputs.anchor_faces,
                 shear=inputs.shear,
-                bend=inputs.extra.get("bend", inputs.bend),
+                bend=bend,
                 pinned=pinned,
                 region=inputs.region,
                 axes=inputs.extra.get("axes"),
