@@ -1,7 +1,14 @@
 """Core timing benchmark: precompute (constructor) and per-deform() time.
 
-Usage: python bench/bench_core.py [--repeats 30] [--sizes 10000 50000 200000] [--markdown]
+Usage: python bench/bench_core.py [--repeats 30] [--sizes 10000 50000 200000] [--region]
+       python bench/bench_core.py --blender-like [--sizes 10000 50000]
 Reports medians over repeated runs. Not a test: targets are compared and printed only.
+
+The default rows feed clean float64 rotations to two anchors: a lower bound. --blender-like adds
+the inputs of a real live update in Blender: six anchors turned freely, their transforms made
+as the add-on makes them from Blender's float32 matrices (inv(M_bind) of a stored float32
+bind matrix times the float32 matrix now), once with rotations only and once with one Empty
+scaled non-uniformly.
 """
 
 from __future__ import annotations
@@ -40,6 +47,43 @@ def poses(k, count, seed=0):
     return out
 
 
+def f32(a):
+    return np.asarray(a, dtype=np.float32).astype(np.float64)
+
+
+def blender_poses(k, count, scaled=False, seed=1):
+    """(count, k, 4, 4) anchor transforms as the add-on computes them from Blender matrices:
+    every Empty has a random bind orientation and is turned freely (up to 2 rad) and moved;
+    matrices are rounded to float32 as Blender stores them. ``scaled``: anchor 1 is also scaled
+    by (1.3, 1, 0.8) along its own axes (a legitimate non-similarity pose)."""
+    rng = np.random.default_rng(seed)
+    bind = np.tile(np.eye(4), (k, 1, 1))
+    for a in range(k):
+        bind[a, :3, :3] = rot(rng.normal(size=3), rng.uniform(0, np.pi))
+        bind[a, :3, 3] = rng.normal(size=3)
+    bind_inv = np.linalg.inv(f32(bind))
+    out = np.empty((count, k, 4, 4))
+    for p in range(count):
+        now = bind.copy()
+        for a in range(k):
+            now[a, :3, :3] = rot(rng.normal(size=3), rng.uniform(0, 2.0)) @ bind[a, :3, :3]
+            now[a, :3, 3] += rng.normal(scale=0.2, size=3)
+        if scaled:
+            now[1, :3, :3] = now[1, :3, :3] @ np.diag([1.3, 1.0, 0.8])
+        out[p] = f32(now) @ bind_inv
+    return out
+
+
+def rings(v, f, k, width=0.01):
+    """k anchors: rings of faces at k evenly spaced stations along x (ends included)."""
+    x = v[f, 0]
+    lo, hi = v[:, 0].min(), v[:, 0].max()
+    out = []
+    for c in np.linspace(lo, hi, k):
+        out.append(np.flatnonzero((np.abs(x - c) <= width * (hi - lo)).all(axis=1)))
+    return out
+
+
 def cat_anchors(v, f, k=6, radius=0.05):
     """k anchors around extreme points (farthest-point picks), faces fully inside a ball."""
     diag = np.linalg.norm(v.max(0) - v.min(0))
@@ -56,10 +100,14 @@ def cat_anchors(v, f, k=6, radius=0.05):
 
 
 def measure(name, v, f, anchors, repeats, mode):
+    """mode: "4x4" / "3x3" (clean float64 rotations), "blender" / "blender scaled"."""
     t0 = time.perf_counter()
     d = md.MaterialDeformer(v, f, anchors)
     pre = time.perf_counter() - t0
-    T = poses(len(anchors), repeats + 3)
+    if mode.startswith("blender"):
+        T = blender_poses(len(anchors), repeats + 3, scaled=mode.endswith("scaled"))
+    else:
+        T = poses(len(anchors), repeats + 3)
     if mode == "3x3":
         T = T[:, :, :3, :3]
         d.deform(T[0])  # first rotation-only call factors its own system; timed separately
@@ -125,11 +173,22 @@ def main():
     ap.add_argument("--precompute-repeats", type=int, default=3)
     ap.add_argument("--region", action="store_true", help="also run the region-of-interest rows")
     ap.add_argument("--threads", type=int, default=None, help="md.set_num_threads(N) first")
+    ap.add_argument(
+        "--blender-like",
+        action="store_true",
+        help="also six freely turned anchors from float32 matrices, plain and with one scaled",
+    )
     args = ap.parse_args()
     if args.threads:
         md.set_num_threads(args.threads)
 
     rows = []
+    for size in args.sizes if args.blender_like else []:
+        v, f = shapes.tube_with_faces(size)
+        for mode in ("blender", "blender scaled"):
+            r = measure(f"tube {size // 1000}k, 6 rings", v, f, rings(v, f, 6), args.repeats, mode)
+            r["target"] = None
+            rows.append(r)
     for size in args.sizes:
         v, f = shapes.tube_with_faces(size)
         lo, hi = shapes.end_faces(v, f, fraction=0.01)
@@ -148,7 +207,7 @@ def main():
     if ref.exists():
         v, f = md.read_obj(ref)
         anchors = cat_anchors(v, f)
-        for mode in ("4x4", "3x3"):
+        for mode in ("4x4", "3x3", *(("blender", "blender scaled") if args.blender_like else ())):
             runs = [
                 measure("cat", v, f, anchors, args.repeats, mode)
                 for _ in range(args.precompute_repeats)
