@@ -13,6 +13,11 @@ Timed per update (medians):
   lap_cycle  move the Hook Empty, view_layer.update() (Hooks + Laplacian Deform evaluated)
 md_cycle and lap_cycle alternate in blocks within one loop, so the ratio compares like with like.
 Threads: the add-on's default (both cores); MATDEFORM_THREADS=1 for one.
+
+--anchors K (default 2) spreads K anchor rings along the tube; --motion picks what each update
+does: "shift" (default: the top Empty moves, the lower bound), "free" (every Empty turns freely
+and moves, as an artist poses a character) or "scaled" (as "free", and one Empty is scaled by
+(1.3, 1, 0.8) along its own axes). Laplacian Deform gets the same rings, one Hook per ring.
 """
 
 import argparse
@@ -75,47 +80,54 @@ def activate(obj):
     obj.select_set(True)
 
 
-def ring_polys(obj, sides, ring_rows):
-    """Polygon mask of the first/last `ring_rows` rows of quads."""
+def ring_polys(obj, sides, ring_rows, k=2):
+    """Polygon masks of k rings of `ring_rows` rows of quads, evenly spaced from the bottom
+    (first) to the top (last)."""
     n = len(obj.data.polygons)
     row = np.arange(n) // sides
     rows = n // sides
-    return row < ring_rows, row >= rows - ring_rows
+    starts = np.linspace(0, rows - ring_rows, k).round().astype(int)
+    return [(row >= b) & (row < b + ring_rows) for b in starts]
 
 
-def setup_md(obj, sides, ring_rows):
+def setup_md(obj, sides, ring_rows, k=2):
+    """Anchors on k rings (Add Anchor makes one Empty each), then Bind. Returns the Empties
+    (top ring first, as the old two-ring setup had it) and the bind time."""
     from material_deform.bridge import select_polygons_edit
 
-    bottom, top = ring_polys(obj, sides, ring_rows)
     activate(obj)
-    for mask in (top, bottom):
+    for mask in reversed(ring_polys(obj, sides, ring_rows, k)):
         bpy.ops.object.mode_set(mode="EDIT")
         select_polygons_edit(obj, mask)
         bpy.ops.mesh.material_deform_add_anchor()
         bpy.ops.object.mode_set(mode="OBJECT")
     t = time.perf_counter()
     assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
-    return obj.material_deform.anchors[0].empty, time.perf_counter() - t
+    return [a.empty for a in obj.material_deform.anchors], time.perf_counter() - t
 
 
-def setup_laplacian(obj, sides, ring_rows):
-    bottom, top = ring_polys(obj, sides, ring_rows)
+def setup_laplacian(obj, sides, ring_rows, k=2, moving=1):
+    """Laplacian Deform anchored on the same k rings; the top `moving` rings get a Hook each
+    (with its own Empty) placed before it in the stack. Returns the hook Empties (top first)."""
+    masks = list(reversed(ring_polys(obj, sides, ring_rows, k)))
     me = obj.data
     lv = np.empty(len(me.loops), np.int32)
     me.loops.foreach_get("vertex_index", lv)
     q = lv.reshape(-1, 4)
-    top_v = np.unique(q[top].ravel())
-    all_v = np.unique(np.concatenate([top_v, q[bottom].ravel()]))
+    ring_v = [np.unique(q[m].ravel()) for m in masks]
     vg = obj.vertex_groups.new(name="Anchors")
-    vg.add(all_v.tolist(), 1.0, "REPLACE")
-    empty = bpy.data.objects.new(obj.name + " hook", None)
-    bpy.context.scene.collection.objects.link(empty)
-    empty.location = (0, 0, 2.0)
-    bpy.context.view_layer.update()
-    hook = obj.modifiers.new("Hook", "HOOK")
-    hook.object = empty
-    hook.vertex_indices_set(top_v.tolist())
-    hook.matrix_inverse = empty.matrix_world.inverted()
+    vg.add(np.unique(np.concatenate(ring_v)).tolist(), 1.0, "REPLACE")
+    empties = []
+    for j in range(moving):
+        empty = bpy.data.objects.new(f"{obj.name} hook {j}", None)
+        bpy.context.scene.collection.objects.link(empty)
+        empty.location = mean_co(me, ring_v[j])  # at the ring centre, as Add Anchor puts it
+        bpy.context.view_layer.update()
+        hook = obj.modifiers.new(f"Hook {j}", "HOOK")
+        hook.object = empty
+        hook.vertex_indices_set(ring_v[j].tolist())
+        hook.matrix_inverse = empty.matrix_world.inverted()
+        empties.append(empty)
     lap = obj.modifiers.new("LaplacianDeform", "LAPLACIANDEFORM")
     lap.vertex_group = "Anchors"
     lap.iterations = 1
@@ -124,7 +136,15 @@ def setup_laplacian(obj, sides, ring_rows):
     with bpy.context.temp_override(object=obj, active_object=obj):
         bpy.ops.object.laplaciandeform_bind(modifier=lap.name)
     bpy.context.view_layer.update()  # the bind happens on evaluation
-    return empty, time.perf_counter() - t
+    return empties, time.perf_counter() - t
+
+
+def mean_co(me, idx):
+    co = np.empty(len(me.vertices) * 3, np.float32)
+    me.vertices.foreach_get("co", co)
+    from mathutils import Vector
+
+    return Vector(co.reshape(-1, 3)[idx].mean(axis=0).tolist())
 
 
 def keep_cpus_awake():
@@ -171,6 +191,28 @@ def wiggle(empty, i):
     empty.location.y = 0.2 * math.cos(0.9 * (i + 1))
 
 
+def pose(empties, rest_matrices, i, motion):
+    """Put every Empty somewhere new for update i: "shift" moves the first one only; "free"
+    turns each one freely (up to ~1 rad about an axis that changes with i) and moves it;
+    "scaled" also scales the second one by (1.3, 1, 0.8) along its own axes."""
+    from mathutils import Matrix, Vector
+
+    if motion == "shift":
+        wiggle(empties[0], i)
+        return
+    for a, (e, m0) in enumerate(zip(empties, rest_matrices, strict=True)):
+        if a == len(empties) - 1 and len(empties) > 1:
+            continue  # the bottom ring stays: something has to hold the tube
+        t = 0.7 * (i + 1) + 1.3 * a
+        axis = Vector((math.sin(t), math.cos(1.7 * t), 0.5)).normalized()
+        rot = Matrix.Rotation(0.9 * math.sin(0.5 * t), 4, axis)
+        shift = Matrix.Translation((0.2 * math.sin(t), 0.1 * math.cos(t), 0.05 * math.sin(2 * t)))
+        m = shift @ Matrix.Translation(m0.translation) @ rot @ m0.to_3x3().to_4x4()
+        if motion == "scaled" and a == 1:
+            m = m @ Matrix.Diagonal((1.3, 1.0, 0.8, 1.0))
+        e.matrix_world = m
+
+
 def tube_dims(target_faces):
     """(rings, sides) of a quad tube with about target_faces triangles, length/diameter ~4."""
     sides = max(16, int(round(math.sqrt(target_faces / 2 / 2.5))))
@@ -190,7 +232,7 @@ def timed_block(cycle, count, i):
     return times, i
 
 
-def bench_size(target_faces, reps, budget_s):
+def bench_size(target_faces, reps, budget_s, k=2, motion="shift"):
     from material_deform import session
 
     rings, sides = tube_dims(target_faces)
@@ -200,33 +242,44 @@ def bench_size(target_faces, reps, budget_s):
 
     obj = tube("MD", rings, sides)
     n_tris = 2 * len(obj.data.polygons)
-    empty, md_bind = setup_md(obj, sides, ring_rows)
+    empties, md_bind = setup_md(obj, sides, ring_rows, k)
+    rest_m = [e.matrix_world.copy() for e in empties]
     entry = session.entry_for(obj, scene)
+    moving = 1 if motion == "shift" else max(1, k - 1)
 
     def md_apply(i):
         # matrix_world directly: a location change only reaches it on evaluation, and at the
         # bind matrix the add-on returns the rest shape without solving
-        m = empty.matrix_world.copy()
-        m.translation.x = 0.3 * math.sin(0.7 * (i + 1))
-        m.translation.y = 0.2 * math.cos(0.9 * (i + 1))
-        empty.matrix_world = m
+        if motion == "shift":
+            m = empties[0].matrix_world.copy()
+            m.translation.x = 0.3 * math.sin(0.7 * (i + 1))
+            m.translation.y = 0.2 * math.cos(0.9 * (i + 1))
+            empties[0].matrix_world = m
+        else:
+            pose(empties, rest_m, i, motion)
         session.apply(obj, scene, None, force=True)
 
     def md_cycle(i):
-        wiggle(empty, i + 1000)
+        pose(empties, rest_m, i + 1000, motion)
         bpy.context.view_layer.update()
         bpy.context.view_layer.update()
 
-    t = np.array([np.eye(4)] * entry.n_anchors)
-    t[0, :3, 3] = (0.1, 0.0, 0.0)
-    solve, _ = median_ms(lambda i: entry.deformer.deform(t), reps, budget_s)
+    pose(empties, rest_m, 7, motion)
+    bpy.context.view_layer.update()
+    t = session.transforms_now(obj, entry, scene)  # exactly what the live update solves for
+    solve, _ = median_ms(lambda i: entry.solver.deformer.deform(t), reps, budget_s)
     apply_ms, n_apply = median_ms(md_apply, reps, budget_s)
 
     lap_obj = tube("Laplacian", rings, sides)
-    hook_empty, lap_bind = setup_laplacian(lap_obj, sides, ring_rows)
+    lap_obj.location.x = 3.0  # apart from the other tube (no effect on the timing)
+    hooks, lap_bind = setup_laplacian(lap_obj, sides, ring_rows, k, moving)
+    hook_rest = [h.matrix_world.copy() for h in hooks]
 
     def lap_cycle(i):
-        wiggle(hook_empty, i)
+        if motion == "shift":
+            wiggle(hooks[0], i)
+        else:
+            pose(hooks + [None], hook_rest + [None], i, motion)
         bpy.context.view_layer.update()
 
     # Full updates of both objects, in alternating blocks so that both see the same machine state
@@ -267,6 +320,8 @@ def bench_size(target_faces, reps, budget_s):
     lap_eval = lap_obj.evaluated_get(bpy.context.evaluated_depsgraph_get()).data
     assert len(lap_eval.vertices) == len(lap_obj.data.vertices)
     return {
+        "anchors": k,
+        "motion": motion,
         "tris": n_tris,
         "verts": len(obj.data.vertices),
         "md_bind_s": md_bind,
@@ -293,6 +348,8 @@ def main():
         action="store_true",
         help="run one nice-19 busy loop per CPU during the run (see keep_cpus_awake)",
     )
+    ap.add_argument("--anchors", type=int, default=2, help="anchor rings along the tube")
+    ap.add_argument("--motion", choices=("shift", "free", "scaled"), default="shift")
     args = ap.parse_args(argv)
     spinners = keep_cpus_awake() if args.keep_cpus_awake else []
 
@@ -300,7 +357,9 @@ def main():
 
     addon_utils.enable("material_deform", default_set=True)
     try:
-        rows = [bench_size(s, args.reps, args.budget) for s in args.sizes]
+        rows = [
+            bench_size(s, args.reps, args.budget, args.anchors, args.motion) for s in args.sizes
+        ]
     finally:
         for p in spinners:
             p.kill()
@@ -308,7 +367,8 @@ def main():
     lines = [
         f"Blender {bpy.app.version_string}, Python {platform.python_version()}, "
         f"{platform.machine()}, {os.cpu_count()} CPU(s)"
-        + (", CPUs kept awake by nice-19 busy loops" if spinners else ""),
+        + (", CPUs kept awake by nice-19 busy loops" if spinners else "")
+        + f"; {args.anchors} anchors, motion '{args.motion}'",
         "",
         "| triangles | vertices | MD bind (s) | MD solve (ms) | MD apply (ms) | MD full update "
         "(ms) | Laplacian bind (s) | Laplacian update (ms) | Laplacian / MD (full update) "
