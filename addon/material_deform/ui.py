@@ -14,6 +14,7 @@ from .model import BindError
 
 DEFAULT_SIDEBAR_WIDTH = 229  # px at UI scale 1 (Blender 3.4 to 4.5), with the tab column
 _MARGIN = 56  # px of the sidebar a panel's rows never get: the tabs and the panel margins
+_LABEL_PAD = 10  # px around a label's text
 _ICON = 26  # px a label's icon takes
 
 
@@ -52,7 +53,7 @@ def wrapped_label(layout, context, text: str, icon: str = "NONE") -> None:
     prefs = getattr(context, "preferences", None)
     scale = prefs.view.ui_scale if prefs is not None else 1.0
     width = region.width if region is not None and region.width > 1 else None
-    width = (width or DEFAULT_SIDEBAR_WIDTH * scale) - _MARGIN * scale
+    width = (width or DEFAULT_SIDEBAR_WIDTH * scale) - (_MARGIN + _LABEL_PAD) * scale
     if icon != "NONE":
         width -= _ICON * scale
     col = layout.column(align=True)
@@ -131,11 +132,8 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
         if not core.available():
             wrapped_label(layout, context, "matdeform core missing: reinstall the add-on", "ERROR")
         if posing:
-            row = layout.row(align=True)
-            row.label(text=obj.name, icon="MESH_DATA")
-            row.operator(
-                "object.material_deform_select_mesh", text="Select", icon="RESTRICT_SELECT_OFF"
-            )
+            wrapped_label(layout, context, f"Anchor Empty of {obj.name}", icon="EMPTY_AXIS")
+            layout.operator("object.material_deform_select_mesh", icon="RESTRICT_SELECT_OFF")
         draw_status(layout, context, obj)
         method = _method(layout, obj) if obj.material_deform.bound else None
         draw_posing(layout, obj, method)

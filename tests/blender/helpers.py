@@ -192,14 +192,17 @@ def expect_error(op, match, **kw):
 #
 # Headless Blender cannot draw a panel, so it is drawn into a layout that records what it holds
 # (checking every property and operator name against RNA) and then lays it out the way Blender
-# does: rows share their width in proportion to what their items need; an item gets less than it
-# needs only when the row's items need more than the row has, and then its text is cut ("…").
-# Widths are in pixels at UI scale 1, text measured with Blender's own UI font (blf, 11 px).
+# does in a panel: a row gives its items equal shares (an icon-only item one icon's width; a
+# nested row as many shares as it has items), and an item whose text needs more than its share
+# is cut ("…"). Widths are in pixels at UI scale 1, text measured with Blender's own UI font
+# (blf, 11 px); the margins were measured on screenshots of the 3.4 GUI under Xvfb
+# (scripts/screenshots_blender.sh).
 
 SIDEBAR_WIDTH = 229  # Blender's default sidebar width, with its tab column
-PANEL_WIDTH = 173  # what a panel's rows get of it (measured in the 3.4 GUI under Xvfb)
+PANEL_WIDTH = 173  # what a panel's rows get of it
 UNIT = 20  # UI_UNIT_X: an icon, an icon-only button
 PAD = 12  # a button's text margins
+LABEL_PAD = 10  # a label's text margins
 SPLIT = 0.4  # share of a named field that its label gets
 
 
@@ -313,11 +316,13 @@ def _item_needs(item):
     kind, icon = item["kind"], item.get("icon", "NONE")
     icon_w = UNIT if icon not in ("NONE", "BLANK1", None) else 0
     if kind == "label":
-        return [(item["text"], text_width(item["text"]) + icon_w + 6 if item["text"] else icon_w)]
+        if not item["text"]:
+            return [("<icon>", icon_w)]
+        return [(item["text"], text_width(item["text"]) + LABEL_PAD + (icon_w and icon_w + 6))]
     if kind == "operator":
         if not item["text"]:
             return [("<icon>", UNIT)]
-        return [(item["text"], text_width(item["text"]) + PAD + icon_w)]
+        return [(item["text"], text_width(item["text"]) + PAD + (icon_w and 16))]
     if kind == "list":
         return [("<list>", 60)]
     rna = item["data"].bl_rna.properties[item["prop"]]
@@ -345,11 +350,22 @@ def _item_needs(item):
     return [(shown, text_width(shown) + PAD + UNIT)]
 
 
-def _need(node):
-    if node["kind"] not in {"row", "column", "box", "split"}:
-        return sum(w for _t, w in _item_needs(node))
-    needs = [_need(c) for c in node["items"]] or [0]
-    return sum(needs) if node["kind"] == "row" else max(needs)
+def _icon_only(node):
+    """An icon-only item, or a layout holding only such items (the + / - column of a list)."""
+    kind = node["kind"]
+    if kind in {"row", "column", "box", "split"}:
+        return bool(node["items"]) and all(_icon_only(c) for c in node["items"])
+    if kind in {"operator", "label"}:
+        return not node["text"]
+    return kind in {"prop", "search"} and node.get("icon_only", False)
+
+
+def _shares(node):
+    """Equal shares a layout asks for in a row (nested rows: one per item)."""
+    kind = node["kind"]
+    if kind in {"row", "split"}:
+        return sum(_shares(c) for c in node["items"] if not _icon_only(c)) or 1
+    return 1
 
 
 def cut_texts(node, width=PANEL_WIDTH):
@@ -361,10 +377,12 @@ def cut_texts(node, width=PANEL_WIDTH):
         for c in node["items"]:
             out += cut_texts(c, inner)
     elif kind in {"row", "split"}:
-        needs = [_need(c) for c in node["items"]]
-        total = sum(needs) or 1
-        for c, n in zip(node["items"], needs, strict=True):
-            out += cut_texts(c, width * n / total if total > width else max(n, width * n / total))
+        # icon-only items keep an icon's width, the others share the rest equally
+        icons = [c for c in node["items"] if _icon_only(c)]
+        rest = width - UNIT * len(icons)
+        total = sum(_shares(c) for c in node["items"] if not _icon_only(c)) or 1
+        for c in node["items"]:
+            out += cut_texts(c, UNIT if _icon_only(c) else rest * _shares(c) / total)
     else:
         parts = _item_needs(node)
         total = sum(w for _t, w in parts)
