@@ -203,6 +203,8 @@ def _descriptions():
     for cls in properties.classes:
         for p in cls.bl_rna.properties:
             yield f"{cls.__name__}.{p.identifier}", p.description
+            for item in getattr(p, "enum_items", ()):
+                yield f"{cls.__name__}.{p.identifier}.{item.identifier}", item.description
 
 
 def test_no_tooltip_cites_a_file_the_zip_does_not_ship():
