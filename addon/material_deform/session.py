@@ -270,13 +270,16 @@ def _bind_pose(obj, keep: bool) -> tuple[np.ndarray, np.ndarray]:
     m_obj_bind = _stored_obj_bind(obj) if keep else None
     if m_obj_bind is None:
         m_obj_bind = m_obj
-    back = m_obj_bind @ am.affine_inverse(m_obj)
+    # the object where it was at bind: exactly the Empties' matrices (no round-off, so the bind
+    # pose evaluates to the rest shape bit for bit)
+    back = None if np.array_equal(m_obj_bind, m_obj) else m_obj_bind @ am.affine_inverse(m_obj)
     mats = []
     for anc in s.anchors:
         if keep and has_bind_pose(anc):
             mats.append(np.array(tuple(anc.bind_matrix), dtype=np.float64).reshape(4, 4))
         else:
-            mats.append(back @ bridge.world_matrix(anc.empty))
+            m = bridge.world_matrix(anc.empty)
+            mats.append(m if back is None else back @ m)
     return m_obj_bind, np.stack(mats)
 
 
@@ -387,13 +390,15 @@ def reset_empties(obj) -> int:
     ancs = [a for a in s.anchors if has_bind_pose(a)]
     if not ancs:
         raise BindError("No bind pose stored: click Bind first")
-    try:
-        carry = m_obj @ am.affine_inverse(m_obj_bind)
-    except ValueError as exc:
-        raise BindError(f"Cannot place the Empties: {exc}") from None
+    carry = None  # the object has not moved: the stored matrices exactly (the rest shape)
+    if not np.array_equal(m_obj, m_obj_bind):
+        try:
+            carry = m_obj @ am.affine_inverse(m_obj_bind)
+        except ValueError as exc:
+            raise BindError(f"Cannot place the Empties: {exc}") from None
     for anc in ancs:
         bind_m = np.array(tuple(anc.bind_matrix), dtype=np.float64).reshape(4, 4)
-        bridge.set_world_matrix(anc.empty, carry @ bind_m)
+        bridge.set_world_matrix(anc.empty, bind_m if carry is None else carry @ bind_m)
     return len(ancs)
 
 

@@ -331,6 +331,21 @@ def test_an_anchor_added_to_a_posed_mesh_sits_on_its_faces_and_rebind_keeps_the_
     np.testing.assert_allclose(output(obj), rest(obj), atol=1e-5)
 
 
+def test_bind_of_a_turned_scaled_object_gives_the_rest_bit_for_bit():
+    obj = tube()
+    obj.rotation_euler = (0.3, 0.2, 0.9)
+    obj.scale = (1.3, 0.7, 1.1)
+    update()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    np.testing.assert_array_equal(output(obj), rest(obj))
+    pose(top)
+    assert bpy.ops.object.material_deform_reset_empties() == {"FINISHED"}
+    update()
+    # (a parented Empty's world matrix goes through Blender's float32 parent products)
+    np.testing.assert_allclose(output(obj), rest(obj), rtol=0, atol=1e-6)
+
+
 def test_reset_empties_puts_them_back_to_the_bind_pose():
     obj, top, bottom = bound_bar()
     pose(top)
