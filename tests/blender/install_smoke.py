@@ -47,7 +47,7 @@ for pick in (lambda p: p.center.z > 1.99, lambda p: p.center.z < -1.99):
     bridge.select_polygons_edit(obj, mask)
     assert bpy.ops.mesh.material_deform_add_anchor() == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
-assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
 top = obj.material_deform.anchors[0].empty
 top.location.x += 1.0
 bpy.context.view_layer.update()
