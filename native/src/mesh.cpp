@@ -72,27 +72,33 @@ void validate_mesh(const Vertices& vertices, const Faces& faces) {
   }
 }
 
-namespace {
-int find_root(std::vector<int>& parent, int x) {
-  while (parent[static_cast<size_t>(x)] != x) {
-    parent[static_cast<size_t>(x)] = parent[static_cast<size_t>(parent[static_cast<size_t>(x)])];
-    x = parent[static_cast<size_t>(x)];
-  }
+DisjointSets::DisjointSets(int n) : parent_(static_cast<size_t>(std::max(n, 0))) {
+  std::iota(parent_.begin(), parent_.end(), 0);
+}
+
+int DisjointSets::find(int x) {
+  auto p = [this](int i) -> int& { return parent_[static_cast<size_t>(i)]; };
+  while (p(x) != x) x = p(x) = p(p(x));
   return x;
 }
-}  // namespace
+
+bool DisjointSets::unite(int a, int b) {
+  // Both roots are taken now, after any earlier link: linking a stale root would detach the
+  // part of its set that was linked in the meantime.
+  a = find(a);
+  b = find(b);
+  if (a == b) return false;
+  parent_[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+  return true;
+}
 
 std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* count) {
-  std::vector<int> parent(static_cast<size_t>(num_faces));
-  std::iota(parent.begin(), parent.end(), 0);
-  for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
-    const int a = find_root(parent, pairs(e, 0)), b = find_root(parent, pairs(e, 1));
-    if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
-  }
+  DisjointSets sets(num_faces);
+  for (Eigen::Index e = 0; e < pairs.rows(); ++e) sets.unite(pairs(e, 0), pairs(e, 1));
   std::vector<int> label(static_cast<size_t>(num_faces), -1);
   int next = 0;
   for (int f = 0; f < num_faces; ++f) {
-    const int r = find_root(parent, f);
+    const int r = sets.find(f);
     if (label[static_cast<size_t>(r)] < 0) label[static_cast<size_t>(r)] = next++;
     label[static_cast<size_t>(f)] = label[static_cast<size_t>(r)];
   }

@@ -23,6 +23,20 @@ DualEdges dual_edges(const Faces& faces);
 // face repeats a vertex, and when any vertex coordinate is not finite.
 void validate_mesh(const Vertices& vertices, const Faces& faces);
 
+// Union-find over [0, n) (path halving). Every set's root is its smallest element, so the
+// result does not depend on the order in which elements are linked. The one union-find of the
+// core: components of faces (face_components) and of vertices (the solvers) both use it.
+class DisjointSets {
+ public:
+  explicit DisjointSets(int n);
+  int find(int x);
+  // Merges the sets of a and b; returns false when they were already one set.
+  bool unite(int a, int b);
+
+ private:
+  std::vector<int> parent_;
+};
+
 // Connected components of the face graph (faces linked by dual edges). Returns one label per
 // face in [0, count) and sets count.
 std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* count);
