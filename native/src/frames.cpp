@@ -5,6 +5,8 @@
 #include <stdexcept>
 #include <string>
 
+#include "matdeform/mesh.hpp"
+
 namespace matdeform {
 
 Eigen::Vector3d fourth_vertex(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
@@ -29,6 +31,8 @@ Matrix3Array deformation_gradients(const Vertices& rest, const Vertices& deforme
   if (rest.rows() != deformed.rows()) {
     throw std::invalid_argument("deformed must have as many vertices as rest");
   }
+  validate_mesh(rest, faces);
+  if (!deformed.allFinite()) throw std::invalid_argument("deformed: contains NaN or infinity");
   const Eigen::Index m = faces.rows();
   Matrix3Array out(static_cast<size_t>(m));
   bool degenerate = false;

@@ -28,11 +28,25 @@ void validate_inputs(const Vertices& rest, const Faces& faces, const IndexPairs&
     if (!poses[s].allFinite()) {
       throw std::invalid_argument("poses[" + std::to_string(s) + "]: non-finite coordinate");
     }
+    if (poses[s].rows() > 0 &&
+        (poses[s].colwise().maxCoeff() - poses[s].colwise().minCoeff()).maxCoeff() > kMaxMeshSize) {
+      throw std::invalid_argument("poses[" + std::to_string(s) +
+                                  "]: larger than 1e50 across: rescale it with the mesh");
+    }
   }
-  const Eigen::Index m = faces.rows();
-  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= m)) {
-    throw std::invalid_argument("pairs: face index out of range [0, " + std::to_string(m) + ")");
+  check_indices(pairs, faces.rows(), "pairs");
+}
+
+// Polar decomposition of a pose's deformation gradient T = S R; false for a face collapsed in
+// the pose (det T <= 0), which is then skipped. Never throws: it runs inside OpenMP loops.
+bool pose_polar(const Eigen::Matrix3d& T, Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
+  if (!(T.determinant() > 0.0)) return false;
+  try {
+    polar_decompose(T, S, R);
+  } catch (const std::invalid_argument&) {
+    return false;  // only for gradients beyond double range; validate_inputs bounds the poses
   }
+  return true;
 }
 
 // Of the two axis-angle vectors describing the same rotation when the angle is near pi
@@ -104,10 +118,9 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
       const Eigen::Matrix3d T =
           face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
           rest_inv[u];
-      valid[u] = T.determinant() > 0.0;
-      if (!valid[u]) continue;
       Eigen::Matrix3d S, R;
-      polar_decompose(T, &S, &R);
+      valid[u] = pose_polar(T, &S, &R);
+      if (!valid[u]) continue;
       Q[u] = R;
       out.shear(i) = std::max(out.shear(i), (S - Eigen::Matrix3d::Identity()).squaredNorm());
       if (anisotropic && frame == AxisFrame::kWorldLogDifference) logs[u] = rotation_log(R);
@@ -165,8 +178,9 @@ Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexP
   if (d.shear.size() != num_faces || d.bend.rows() != pairs.rows()) {
     throw std::invalid_argument("distortions do not match num_faces / pairs");
   }
-  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= num_faces)) {
-    throw std::invalid_argument("pairs: face index out of range");
+  check_indices(pairs, num_faces, "pairs");
+  if (!d.bend.allFinite() || !d.shear.allFinite()) {
+    throw std::invalid_argument("distortions: contain NaN or infinity");
   }
   if (passes == 0) return d;
   const Eigen::Index m = num_faces, num_edges = pairs.rows(), cols = d.bend.cols();
@@ -234,9 +248,8 @@ RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexP
       const Eigen::Matrix3d T =
           face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
           rest_inv[static_cast<size_t>(i)];
-      if (!(T.determinant() > 0.0)) continue;
       Eigen::Matrix3d S, R;
-      polar_decompose(T, &S, &R);
+      if (!pose_polar(T, &S, &R)) continue;
       for (int a = 0; a < 3; ++a) {
         for (int b = 0; b < 3; ++b) x(i, 3 * a + b) = R(a, b);
       }

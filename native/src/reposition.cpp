@@ -11,6 +11,7 @@
 
 #include "matdeform/frames.hpp"
 #include "matdeform/mesh.hpp"
+#include "matdeform/stiffness.hpp"
 #include "simd.hpp"
 #include "sparse_cholesky.hpp"
 #include "task_pool.hpp"
@@ -132,6 +133,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   d.rest = vertices;
   d.faces = faces;
   if (shear.size() != d.m) throw std::invalid_argument("shear: one value per face expected");
+  validate_mesh(vertices, faces);
+  check_stiffness(shear.data(), shear.size(), "shear");
 
   std::vector<char> is_fixed(d.n, 0);
   for (int v : fixed) {

@@ -3,6 +3,7 @@
 #include <cholmod.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
 #include <queue>
 #include <stdexcept>
@@ -19,6 +20,12 @@ namespace matdeform {
 namespace {
 
 constexpr int kWidth = 4;  // right-hand sides per pass; 3 coordinates fill it with one pad
+
+// What the user can change when a factorisation fails on a system that is positive definite in
+// exact arithmetic (every caller removes the null space first).
+constexpr const char* kIllConditioned =
+    "the linear system is too ill-conditioned to factor in double precision: reduce the "
+    "stiffness ratio (max/min) or remove faces far smaller than their neighbours";
 
 // Forward pass L y = b over rows [b, e) in gather form: y_i = (b_i - sum_j<i L_ij y_j) / L_ii.
 // All j are descendants of i in the elimination tree. Four partial sums break the FMA latency
@@ -131,9 +138,9 @@ struct Substitution {
     for (int j = 0; j < n; ++j) {
       const int b = Lp[j], e = Lp[j] + Lnz[j];
       // CHOLMOD keeps the diagonal first in each simplicial column.
-      if (e <= b || Li[b] != j || !(Lx[b] > 0.0)) {
-        throw std::runtime_error("unexpected CHOLMOD factor layout");
-      }
+      if (e <= b || Li[b] != j) throw std::runtime_error("unexpected CHOLMOD factor layout");
+      // A zero, negative or NaN pivot: CHOLMOD lost positive definiteness to round-off.
+      if (!(Lx[b] > 0.0) || !std::isfinite(Lx[b])) throw std::invalid_argument(kIllConditioned);
       dinv[j] = 1.0 / Lx[b];
       for (int q = b + 1; q < e; ++q) {
         const int i = Li[q];
@@ -335,6 +342,9 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   if (n_ == 0) return;
   Eigen::SparseMatrix<double> A = A_in.triangularView<Eigen::Lower>();
   A.makeCompressed();
+  for (Eigen::Index i = 0; i < A.nonZeros(); ++i) {
+    if (!std::isfinite(A.valuePtr()[i])) throw std::invalid_argument(kIllConditioned);
+  }
   cholmod_common* c = &impl_->c;
   cholmod_sparse* As =
       cholmod_allocate_sparse(static_cast<size_t>(n_), static_cast<size_t>(n_),
@@ -353,11 +363,15 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
     status = c->status;
   }
   cholmod_free_sparse(&As, c);
-  if (!impl_->L || status == CHOLMOD_NOT_POSDEF || status < CHOLMOD_OK) {
-    throw std::runtime_error("sparse Cholesky factorisation failed (CHOLMOD status " +
-                             std::to_string(status) +
-                             "): the system is singular or not positive definite");
+  if (impl_->L && status == CHOLMOD_NOT_POSDEF) {
+    throw std::invalid_argument(kIllConditioned);
   }
+  if (!impl_->L || status < CHOLMOD_OK) {
+    // Out of memory or a CHOLMOD limit: nothing the input could fix but its size.
+    throw std::runtime_error("sparse Cholesky factorisation failed (CHOLMOD status " +
+                             std::to_string(status) + ")");
+  }
+
   if (reuse == Reuse::PerPose) {
     impl_->sub = std::make_unique<Substitution>(impl_->L);
     cholmod_free_factor(&impl_->L, c);  // the copy above is all the solves need

@@ -14,8 +14,9 @@ class SparseCholesky {
   // CHOLMOD's factor and solve (cheapest to set up).
   enum class Reuse { Once, PerPose };
 
-  // A: symmetric positive definite; only its lower triangle is read. Throws std::runtime_error
-  // if CHOLMOD finds it not positive definite.
+  // A: symmetric positive definite; only its lower triangle is read. Throws
+  // std::invalid_argument (a message saying what to change) if A has a non-finite entry or is
+  // not positive definite in double precision, std::runtime_error if CHOLMOD fails otherwise.
   SparseCholesky(const Eigen::SparseMatrix<double>& A, Reuse reuse);
   ~SparseCholesky();
   SparseCholesky(const SparseCholesky&) = delete;

@@ -90,9 +90,10 @@ TEST(SparseCholesky, ParallelSubstitutionMatchesSerial) {
   matdeform::set_num_threads(before);
 }
 
-TEST(SparseCholesky, NotPositiveDefiniteThrows) {
+TEST(SparseCholesky, NotPositiveDefiniteThrowsInvalidArgument) {
+  // invalid_argument (ValueError in Python) with a message saying what to change.
   Eigen::SparseMatrix<double> A = sheet_and_path(5, 5, 0, 0.0);  // singular: constants
-  EXPECT_THROW(SparseCholesky(A, SparseCholesky::Reuse::PerPose), std::runtime_error);
+  EXPECT_THROW(SparseCholesky(A, SparseCholesky::Reuse::PerPose), std::invalid_argument);
 }
 
 }  // namespace

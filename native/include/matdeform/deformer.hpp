@@ -37,7 +37,8 @@ struct DeformerOptions {
 class MaterialDeformer {
  public:
   // vertices (n,3); faces (m,3); anchors: k disjoint non-empty face lists; shear (m,) > 0;
-  // bend (E,1) isotropic or (E,3) per rotation axis, > 0, rows in dual_edges() order.
+  // bend (E,1) isotropic or (E,3) per rotation axis, > 0, rows in dual_edges() order; each
+  // field's max/min at most kMaxStiffnessRatio. Throws std::invalid_argument for bad input.
   MaterialDeformer(const Vertices& vertices, const Faces& faces, const AnchorList& anchors,
                    const Eigen::VectorXd& shear, const RowMatrix& bend,
                    const DeformerOptions& options = {});
