@@ -194,6 +194,7 @@ RowMatrix MaterialDeformer::axis_weights(int axis) const {
 }
 
 Matrix3Array MaterialDeformer::face_transforms() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
   Matrix3Array out(static_cast<size_t>(weights_full_.rows()), Eigen::Matrix3d::Identity());
   if (last_logs_.empty()) return out;
   Matrix3Array blended;
@@ -209,6 +210,7 @@ Matrix3Array MaterialDeformer::face_transforms() const {
 
 Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
                                   bool has_translation, const Vertices* pinned_positions) const {
+  const std::lock_guard<std::mutex> lock(mutex_);
   const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
   const size_t k = anchors_.size();
   if (transforms.size() != k) {

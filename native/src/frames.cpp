@@ -6,6 +6,7 @@
 #include <string>
 
 #include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
 
 namespace matdeform {
 
@@ -37,7 +38,7 @@ Matrix3Array deformation_gradients(const Vertices& rest, const Vertices& deforme
   Matrix3Array out(static_cast<size_t>(m));
   bool degenerate = false;
   Eigen::Index bad = -1;
-#pragma omp parallel for schedule(static) if (m > 20000)
+#pragma omp parallel for schedule(static) num_threads(num_threads()) if (m > 20000)
   for (Eigen::Index i = 0; i < m; ++i) {
     const int a = faces(i, 0), b = faces(i, 1), c = faces(i, 2);
     const Eigen::Matrix3d V = face_frame(rest.row(a), rest.row(b), rest.row(c));

@@ -8,6 +8,7 @@
 
 #include "matdeform/frames.hpp"
 #include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
 #include "matdeform/transforms.hpp"
 
 namespace matdeform {
@@ -86,7 +87,7 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
   // Rest frames are shared by all poses: invert them once.
   Matrix3Array rest_inv(static_cast<size_t>(m));
   Eigen::Index degenerate = -1;
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) num_threads(num_threads())
   for (Eigen::Index i = 0; i < m; ++i) {
     const Eigen::Matrix3d V =
         face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
@@ -112,7 +113,7 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
   std::vector<char> valid(static_cast<size_t>(m));
 
   for (const Vertices& pose : poses) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) num_threads(num_threads())
     for (Eigen::Index i = 0; i < m; ++i) {
       const auto u = static_cast<size_t>(i);
       const Eigen::Matrix3d T =
@@ -125,7 +126,7 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
       out.shear(i) = std::max(out.shear(i), (S - Eigen::Matrix3d::Identity()).squaredNorm());
       if (anisotropic && frame == AxisFrame::kWorldLogDifference) logs[u] = rotation_log(R);
     }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) num_threads(num_threads())
     for (Eigen::Index e = 0; e < num_edges; ++e) {
       const auto i = static_cast<size_t>(pairs(e, 0)), j = static_cast<size_t>(pairs(e, 1));
       if (!valid[i] || !valid[j]) continue;
@@ -239,7 +240,7 @@ RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexP
     degree(pairs(e, 0)) += 1.0;
     degree(pairs(e, 1)) += 1.0;
   }
-#pragma omp parallel for schedule(dynamic)
+#pragma omp parallel for schedule(dynamic) num_threads(num_threads())
   for (Eigen::Index s = 0; s < l; ++s) {
     const Vertices& pose = poses[static_cast<size_t>(s)];
     // Columns 0..8: weight * Q (row-major), column 9: weight (1, or 0 for a collapsed face).

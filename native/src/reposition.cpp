@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -118,6 +119,7 @@ struct PoissonRepositioner::Impl {
   // The solver's row order: free vertex f is permuted row free_row[f].
   std::vector<int> free_row;
 
+  mutable std::mutex mutex;           // guards the workspace below
   mutable std::vector<double> local;  // grouped layout, kGroupStride per group
   mutable std::vector<double> y4;     // right-hand side, then solution, (nf,4) permuted rows
   mutable Col3 fixed_pos;
@@ -315,6 +317,7 @@ void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fix
 void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fixed_positions,
                                 Vertices* out) const {
   const Impl& d = *impl_;
+  const std::lock_guard<std::mutex> lock(d.mutex);
   if (fixed_positions.rows() != d.num_user_fixed) {
     throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
   }

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <queue>
 #include <stdexcept>
 #include <string>
@@ -303,9 +304,20 @@ struct Substitution {
   }
 };
 
+// One factorisation at a time in the process. The supernodal factorisation calls BLAS, and
+// the serial OpenBLAS that Debian ships (libopenblas0-serial) is not safe for concurrent
+// calls: two deformers built on two threads at once got wrong factors (weights off by 0.6)
+// or "not positive definite". Factorisations are the expensive, once-per-bind part, so running
+// them one after another costs little; solves never take this lock.
+std::mutex& factor_mutex() {
+  static std::mutex m;
+  return m;
+}
+
 }  // namespace
 
 struct SparseCholesky::Impl {
+  std::mutex mutex;  // guards every mutable member (and sub's) during a solve
   cholmod_common c;
   cholmod_factor* L = nullptr;
   mutable cholmod_dense* X = nullptr;
@@ -353,14 +365,18 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   std::memcpy(As->p, A.outerIndexPtr(), sizeof(int) * static_cast<size_t>(n_ + 1));
   std::memcpy(As->i, A.innerIndexPtr(), sizeof(int) * static_cast<size_t>(A.nonZeros()));
   std::memcpy(As->x, A.valuePtr(), sizeof(double) * static_cast<size_t>(A.nonZeros()));
-  impl_->L = cholmod_analyze(As, c);
-  if (impl_->L) cholmod_factorize(As, impl_->L, c);
-  int status = c->status;
-  // Supernodal factorisation is fastest to compute, but for a handful of right-hand sides a
-  // simplicial solve is faster (no BLAS call overhead per supernode): convert once here.
-  if (impl_->L && status >= CHOLMOD_OK && status != CHOLMOD_NOT_POSDEF && impl_->L->is_super) {
-    cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, impl_->L, c);
+  int status;
+  {
+    const std::lock_guard<std::mutex> lock(factor_mutex());
+    impl_->L = cholmod_analyze(As, c);
+    if (impl_->L) cholmod_factorize(As, impl_->L, c);
     status = c->status;
+    // Supernodal factorisation is fastest to compute, but for a handful of right-hand sides a
+    // simplicial solve is faster (no BLAS call overhead per supernode): convert once here.
+    if (impl_->L && status >= CHOLMOD_OK && status != CHOLMOD_NOT_POSDEF && impl_->L->is_super) {
+      cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, impl_->L, c);
+      status = c->status;
+    }
   }
   cholmod_free_sparse(&As, c);
   if (impl_->L && status == CHOLMOD_NOT_POSDEF) {
@@ -382,6 +398,7 @@ SparseCholesky::~SparseCholesky() = default;
 
 void SparseCholesky::solve(const double* B, double* X, int nrhs) const {
   if (n_ == 0 || nrhs == 0) return;
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   if (impl_->sub) {
     impl_->sub->solve(B, X, nrhs);
     return;
@@ -411,10 +428,12 @@ const std::vector<int>& SparseCholesky::permutation() const {
 void SparseCholesky::solve_permuted4(double* Y) const {
   if (n_ == 0) return;
   if (!impl_->sub) throw std::logic_error("solve_permuted4(): not a PerPose factor");
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   impl_->sub->run(Y);
 }
 
 int SparseCholesky::substitution_threads() const {
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   return impl_->sub ? impl_->sub->sched.threads : 0;
 }
 
