@@ -38,6 +38,62 @@ void validate_inputs(const Vertices& rest, const Faces& faces, const IndexPairs&
   check_indices(pairs, faces.rows(), "pairs");
 }
 
+// Inverse rest frame of every face (shared by all poses); throws for a degenerate rest face,
+// naming the first one.
+Matrix3Array inverse_rest_frames(const Vertices& rest, const Faces& faces) {
+  const Eigen::Index m = faces.rows();
+  Matrix3Array inv(static_cast<size_t>(m));
+  std::vector<char> degenerate(static_cast<size_t>(m), 0);
+#pragma omp parallel for schedule(static) num_threads(num_threads())
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const Eigen::Matrix3d V =
+        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
+    const Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
+    degenerate[static_cast<size_t>(i)] = !lu.isInvertible();
+    inv[static_cast<size_t>(i)] =
+        lu.isInvertible() ? Eigen::Matrix3d(lu.inverse()) : Eigen::Matrix3d::Identity();
+  }
+  const auto bad = std::find(degenerate.begin(), degenerate.end(), 1);
+  if (bad != degenerate.end()) {
+    throw std::invalid_argument("rest face " + std::to_string(bad - degenerate.begin()) +
+                                " is degenerate (zero area)");
+  }
+  return inv;
+}
+
+// Deformation gradient of face i in a pose: its frame there times the inverse rest frame.
+Eigen::Matrix3d pose_gradient(const Vertices& pose, const Faces& faces,
+                              const Matrix3Array& rest_inv, Eigen::Index i) {
+  return face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
+         rest_inv[static_cast<size_t>(i)];
+}
+
+// Number of dual edges at each face.
+Eigen::VectorXd face_degrees(Eigen::Index num_faces, const IndexPairs& pairs) {
+  Eigen::VectorXd degree = Eigen::VectorXd::Zero(num_faces);
+  for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
+    degree(pairs(e, 0)) += 1.0;
+    degree(pairs(e, 1)) += 1.0;
+  }
+  return degree;
+}
+
+// `passes` passes of the face-graph averaging: every row of x (one per face) becomes the mean of
+// itself and its dual-edge neighbours. degree from face_degrees.
+void average_over_face_graph(const IndexPairs& pairs, const Eigen::VectorXd& degree, int passes,
+                             RowMatrix* x) {
+  RowMatrix next(x->rows(), x->cols());
+  for (int p = 0; p < passes; ++p) {
+    next = *x;
+    for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
+      next.row(pairs(e, 0)) += x->row(pairs(e, 1));
+      next.row(pairs(e, 1)) += x->row(pairs(e, 0));
+    }
+    for (Eigen::Index f = 0; f < x->rows(); ++f) next.row(f) /= 1.0 + degree(f);
+    x->swap(next);
+  }
+}
+
 // Polar decomposition of a pose's deformation gradient T = S R; false for a face collapsed in
 // the pose (det T <= 0), which is then skipped. Never throws: it runs inside OpenMP loops.
 bool pose_polar(const Eigen::Matrix3d& T, Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
@@ -84,26 +140,7 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
   const Eigen::Index m = faces.rows();
   const Eigen::Index num_edges = pairs.rows();
 
-  // Rest frames are shared by all poses: invert them once.
-  Matrix3Array rest_inv(static_cast<size_t>(m));
-  Eigen::Index degenerate = -1;
-#pragma omp parallel for schedule(static) num_threads(num_threads())
-  for (Eigen::Index i = 0; i < m; ++i) {
-    const Eigen::Matrix3d V =
-        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
-    if (!lu.isInvertible()) {
-#pragma omp critical
-      degenerate = i;
-      rest_inv[static_cast<size_t>(i)].setIdentity();
-    } else {
-      rest_inv[static_cast<size_t>(i)] = lu.inverse();
-    }
-  }
-  if (degenerate >= 0) {
-    throw std::invalid_argument("rest face " + std::to_string(degenerate) +
-                                " is degenerate (zero area)");
-  }
+  const Matrix3Array rest_inv = inverse_rest_frames(rest, faces);
 
   Distortions out;
   out.shear = Eigen::VectorXd::Zero(m);
@@ -116,11 +153,8 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
 #pragma omp parallel for schedule(static) num_threads(num_threads())
     for (Eigen::Index i = 0; i < m; ++i) {
       const auto u = static_cast<size_t>(i);
-      const Eigen::Matrix3d T =
-          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
-          rest_inv[u];
       Eigen::Matrix3d S, R;
-      valid[u] = pose_polar(T, &S, &R);
+      valid[u] = pose_polar(pose_gradient(pose, faces, rest_inv, i), &S, &R);
       if (!valid[u]) continue;
       Q[u] = R;
       out.shear(i) = std::max(out.shear(i), (S - Eigen::Matrix3d::Identity()).squaredNorm());
@@ -187,27 +221,15 @@ Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexP
   const Eigen::Index m = num_faces, num_edges = pairs.rows(), cols = d.bend.cols();
   // Face values: column 0..cols-1 bending, column cols shear; smoothed together.
   RowMatrix x = RowMatrix::Zero(m, cols + 1);
-  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
+  const Eigen::VectorXd degree = face_degrees(m, pairs);
   for (Eigen::Index e = 0; e < num_edges; ++e) {
-    for (int k = 0; k < 2; ++k) {
-      x.row(pairs(e, k)).head(cols) += d.bend.row(e);
-      degree(pairs(e, k)) += 1.0;
-    }
+    for (int k = 0; k < 2; ++k) x.row(pairs(e, k)).head(cols) += d.bend.row(e);
   }
   for (Eigen::Index f = 0; f < m; ++f) {
     if (degree(f) > 0) x.row(f).head(cols) /= degree(f);
   }
   x.col(cols) = d.shear;
-  RowMatrix next(m, cols + 1);
-  for (int p = 0; p < passes; ++p) {
-    next = x;
-    for (Eigen::Index e = 0; e < num_edges; ++e) {
-      next.row(pairs(e, 0)) += x.row(pairs(e, 1));
-      next.row(pairs(e, 1)) += x.row(pairs(e, 0));
-    }
-    for (Eigen::Index f = 0; f < m; ++f) next.row(f) /= 1.0 + degree(f);
-    x.swap(next);
-  }
+  average_over_face_graph(pairs, degree, passes, &x);
   Distortions out;
   out.shear = x.col(cols);
   out.bend.resize(num_edges, cols);
@@ -221,51 +243,26 @@ RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexP
                           const std::vector<Vertices>& poses, int passes) {
   if (passes < 0) throw std::invalid_argument("passes must be >= 0");
   validate_inputs(rest, faces, pairs, poses);
-  const Eigen::Index m = faces.rows(), num_edges = pairs.rows();
+  const Eigen::Index m = faces.rows();
   const auto l = static_cast<Eigen::Index>(poses.size());
   RowMatrix out = RowMatrix::Zero(m, l);
   if (passes == 0) return out;
-  Matrix3Array rest_inv(static_cast<size_t>(m));
-  for (Eigen::Index i = 0; i < m; ++i) {
-    const Eigen::Matrix3d V =
-        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
-    if (!lu.isInvertible()) {
-      throw std::invalid_argument("rest face " + std::to_string(i) + " is degenerate (zero area)");
-    }
-    rest_inv[static_cast<size_t>(i)] = lu.inverse();
-  }
-  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
-  for (Eigen::Index e = 0; e < num_edges; ++e) {
-    degree(pairs(e, 0)) += 1.0;
-    degree(pairs(e, 1)) += 1.0;
-  }
+  const Matrix3Array rest_inv = inverse_rest_frames(rest, faces);
+  const Eigen::VectorXd degree = face_degrees(m, pairs);
 #pragma omp parallel for schedule(dynamic) num_threads(num_threads())
   for (Eigen::Index s = 0; s < l; ++s) {
     const Vertices& pose = poses[static_cast<size_t>(s)];
     // Columns 0..8: weight * Q (row-major), column 9: weight (1, or 0 for a collapsed face).
     RowMatrix x = RowMatrix::Zero(m, 10);
     for (Eigen::Index i = 0; i < m; ++i) {
-      const Eigen::Matrix3d T =
-          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
-          rest_inv[static_cast<size_t>(i)];
       Eigen::Matrix3d S, R;
-      if (!pose_polar(T, &S, &R)) continue;
+      if (!pose_polar(pose_gradient(pose, faces, rest_inv, i), &S, &R)) continue;
       for (int a = 0; a < 3; ++a) {
         for (int b = 0; b < 3; ++b) x(i, 3 * a + b) = R(a, b);
       }
       x(i, 9) = 1.0;
     }
-    RowMatrix next(m, 10);
-    for (int p = 0; p < passes; ++p) {
-      next = x;
-      for (Eigen::Index e = 0; e < num_edges; ++e) {
-        next.row(pairs(e, 0)) += x.row(pairs(e, 1));
-        next.row(pairs(e, 1)) += x.row(pairs(e, 0));
-      }
-      for (Eigen::Index i = 0; i < m; ++i) next.row(i) /= 1.0 + degree(i);
-      x.swap(next);
-    }
+    average_over_face_graph(pairs, degree, passes, &x);
     for (Eigen::Index i = 0; i < m; ++i) {
       const double w = x(i, 9);
       // Weighted mean of unit-norm-squared-3 matrices: 3 - |mean|^2 is their variance, >= 0.
