@@ -106,14 +106,26 @@ bool pose_polar(const Eigen::Matrix3d& T, Eigen::Matrix3d* S, Eigen::Matrix3d* R
   return true;
 }
 
-// Of the two axis-angle vectors describing the same rotation when the angle is near pi
-// (w and w - 2 pi w/|w|), the one closest to `ref`. Keeps log differences across an edge small
-// where the principal log jumps.
-Eigen::Vector3d closest_log(const Eigen::Vector3d& w, const Eigen::Vector3d& ref) {
+// The other axis-angle vector of the same rotation, w - 2 pi w/|w| (the one nearest w).
+Eigen::Vector3d other_log(const Eigen::Vector3d& w) {
   const double angle = w.norm();
-  if (angle < 1e-12) return w;
-  const Eigen::Vector3d alt = w - (2.0 * kPi / angle) * w;
-  return (alt - ref).squaredNorm() < (w - ref).squaredNorm() ? alt : w;
+  return angle < 1e-12 ? w : Eigen::Vector3d(w - (2.0 * kPi / angle) * w);
+}
+
+// log Q_j - log Q_i with each log free to take either of its two nearest representatives (w and
+// other_log(w)): the shortest of the four differences. Keeps the difference small where the
+// principal log jumps at angle pi, and is the same (negated) when i and j swap, so it does not
+// depend on how faces are numbered. (Moving only log Q_j towards log Q_i was order-dependent:
+// relabelling a mesh changed learned values by up to 8.)
+Eigen::Vector3d log_difference(const Eigen::Vector3d& wi, const Eigen::Vector3d& wj) {
+  const Eigen::Vector3d a[2] = {wi, other_log(wi)}, b[2] = {wj, other_log(wj)};
+  Eigen::Vector3d best = wj - wi;
+  for (const auto& x : a) {
+    for (const auto& y : b) {
+      if ((y - x).squaredNorm() < best.squaredNorm()) best = y - x;
+    }
+  }
+  return best;
 }
 
 // numpy-style linear-interpolation percentile (q in [0,100]) of all entries of x.
@@ -168,9 +180,8 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
         out.bend(e, 0) = std::max(out.bend(e, 0), (Q[i] - Q[j]).squaredNorm());
         continue;
       }
-      const Eigen::Vector3d w = frame == AxisFrame::kRest
-                                    ? rotation_log(Q[i].transpose() * Q[j])
-                                    : Eigen::Vector3d(closest_log(logs[j], logs[i]) - logs[i]);
+      const Eigen::Vector3d w = frame == AxisFrame::kRest ? rotation_log(Q[i].transpose() * Q[j])
+                                                          : log_difference(logs[i], logs[j]);
       for (int a = 0; a < 3; ++a) out.bend(e, a) = std::max(out.bend(e, a), w(a) * w(a));
     }
   }

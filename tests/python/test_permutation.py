@@ -4,7 +4,7 @@ the repositioning union-find used to leave vertices behind for some orders)."""
 import numpy as np
 import pytest
 from conftest import affine, rotation
-from permutation import assert_permutation_invariant, catalogue
+from permutation import Relabelling, assert_permutation_invariant, catalogue
 
 import matdeform as md
 
@@ -89,3 +89,32 @@ def test_helper_detects_an_order_dependent_solver():
 
     with pytest.raises(AssertionError, match="changes the result"):
         assert_permutation_invariant(solve, v, f, seed=1, trials=2)
+
+
+LEARN = [m for m in MESHES if m[0] in ("grid", "tube", "cat")]
+
+
+@pytest.mark.parametrize("frame", ["rest", "world"])
+@pytest.mark.parametrize("name,v,f", LEARN, ids=[m[0] for m in LEARN])
+def test_learning_is_invariant_to_relabelling(name, v, f, frame):
+    """Learned distortions per dual edge and face; poses turned by nearly pi, where the world
+    frame's log differences choose between representatives of the logs."""
+    rng = np.random.default_rng(2)
+    diag = np.linalg.norm(np.ptp(v, axis=0))
+    poses = []
+    for s in range(3):
+        R = rotation(rng.normal(size=3), np.pi - 0.05 * s)
+        a = 0.4 * (v[:, 0] - v[:, 0].min()) / np.ptp(v[:, 0])  # bend about z along x
+        c, sn = np.cos(a), np.sin(a)
+        p = np.stack([c * v[:, 0] - sn * v[:, 1], sn * v[:, 0] + c * v[:, 1], v[:, 2]], 1) @ R.T
+        poses.append(p + rng.normal(scale=1e-3 * diag, size=v.shape))
+    ref = md.learn_distortions(v, f, poses, anisotropic=True, frame=frame)
+    spread = md.rotation_spread(v, f, poses, 2)
+    for t in range(2 if name == "cat" else 4):
+        r = Relabelling(v, f, np.random.default_rng(t))
+        p2 = [r.per_vertex(p) for p in poses]
+        bend, shear = md.learn_distortions(r.vertices, r.faces, p2, anisotropic=True, frame=frame)
+        np.testing.assert_allclose(r.dual_edges_to_original(bend), ref[0], atol=1e-9)
+        np.testing.assert_allclose(r.faces_to_original(shear), ref[1], atol=1e-9)
+        s2 = md.rotation_spread(r.vertices, r.faces, p2, 2)
+        np.testing.assert_allclose(r.faces_to_original(s2), spread, atol=1e-9)
