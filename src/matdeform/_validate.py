@@ -173,8 +173,8 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     if not np.isfinite(t).all():
         raise _fail(name, "contains NaN or infinity")
     det = _det3(t[:, :3, :3])
-    if (det <= 0).any():
-        a = int(np.flatnonzero(det <= 0)[0])
+    if not (det > 0).all():  # NaN too: a determinant that overflowed
+        a = int(np.flatnonzero(~(det > 0))[0])
         raise _fail(name, f"transform {a} has det {det[a]:.3g}; rotation and scale need det > 0")
     # abs/max rather than np.allclose: the same test (t is finite here) in 2 us instead of 13,
     # on a path that runs once per live update

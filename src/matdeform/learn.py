@@ -120,7 +120,7 @@ def smooth_distortions(faces, bend, shear, passes: int) -> tuple[np.ndarray, np.
             raise ValueError(f"{name}: contains NaN or infinity")
     if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
         raise ValueError(f"passes: expected an integer >= 0, got {passes!r}")
-    b2 = np.ascontiguousarray(b.reshape(len(pairs), -1))
+    b2 = np.ascontiguousarray(b.reshape(len(pairs), b.shape[1] if b.ndim == 2 else 1))
     sb, ss = _core.smooth_distortions(b2, np.ascontiguousarray(s), pairs, int(passes))
     return np.asarray(sb).reshape(b.shape), np.asarray(ss)
 
@@ -184,7 +184,7 @@ def stiffness_from_distortion(
         raise ValueError(f"clamp_percent: expected 0 <= clamp_percent < 100, got {clamp_percent}")
     if not (np.isfinite(sharpness) and sharpness >= 0):
         raise ValueError(f"sharpness: expected a finite value >= 0, got {sharpness}")
-    d2 = np.ascontiguousarray(d.reshape(d.shape[0], -1))
+    d2 = np.ascontiguousarray(d.reshape(d.shape[0], d.shape[1] if d.ndim == 2 else 1))
     s = np.asarray(
         _core.stiffness_from_distortion(d2, float(eps), float(clamp_percent), float(sharpness))
     )
