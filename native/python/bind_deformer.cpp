@@ -46,6 +46,11 @@ void bind_deformer(py::module_& m) {
       .def_property_readonly("anisotropic", &MaterialDeformer::anisotropic)
       .def_property_readonly("num_region_vertices", &MaterialDeformer::num_region_vertices)
       .def_property_readonly("face_transforms", [](const MaterialDeformer& self) {
-        return py_convert::from_matrices3(self.face_transforms());
+        Matrix3Array T;
+        {
+          py::gil_scoped_release release;  // may wait for a deform() on another thread
+          T = self.face_transforms();
+        }
+        return py_convert::from_matrices3(T);
       });
 }

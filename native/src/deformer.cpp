@@ -8,6 +8,7 @@
 
 #include "matdeform/mesh.hpp"
 #include "matdeform/reposition.hpp"
+#include "matdeform/stiffness.hpp"
 #include "matdeform/transforms.hpp"
 #include "matdeform/weights.hpp"
 #include "task_pool.hpp"
@@ -15,14 +16,6 @@
 namespace matdeform {
 
 namespace {
-void check_positive(const double* x, Eigen::Index size, const char* name) {
-  for (Eigen::Index i = 0; i < size; ++i) {
-    if (!std::isfinite(x[i]) || !(x[i] > 0.0)) {
-      throw std::invalid_argument(std::string(name) + ": stiffness must be finite and > 0");
-    }
-  }
-}
-
 std::vector<int> sorted_unique(std::vector<int> v) {
   std::sort(v.begin(), v.end());
   v.erase(std::unique(v.begin(), v.end()), v.end());
@@ -38,12 +31,12 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
   const int n = static_cast<int>(vertices.rows());
   const int m = static_cast<int>(faces.rows());
   if (shear.size() != m) throw std::invalid_argument("shear: expected one value per face");
-  check_positive(shear.data(), shear.size(), "shear");
+  check_stiffness(shear.data(), shear.size(), "shear");
   const DualEdges dual = dual_edges(faces);
   if (bend.rows() != dual.pairs.rows() || (bend.cols() != 1 && bend.cols() != 3)) {
     throw std::invalid_argument("bend: expected shape (E,1) or (E,3) with E dual edges");
   }
-  check_positive(bend.data(), bend.size(), "bend");
+  check_stiffness(bend.data(), bend.size(), "bend");
   validate_anchors(m, anchors);
   if (!(axes_.transpose() * axes_).isIdentity(1e-9) || axes_.determinant() < 0) {
     throw std::invalid_argument("axes: expected a rotation matrix (orthonormal columns)");
@@ -201,6 +194,7 @@ RowMatrix MaterialDeformer::axis_weights(int axis) const {
 }
 
 Matrix3Array MaterialDeformer::face_transforms() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
   Matrix3Array out(static_cast<size_t>(weights_full_.rows()), Eigen::Matrix3d::Identity());
   if (last_logs_.empty()) return out;
   Matrix3Array blended;
@@ -216,6 +210,7 @@ Matrix3Array MaterialDeformer::face_transforms() const {
 
 Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
                                   bool has_translation, const Vertices* pinned_positions) const {
+  const std::lock_guard<std::mutex> lock(mutex_);
   const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
   const size_t k = anchors_.size();
   if (transforms.size() != k) {
@@ -242,6 +237,9 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
     if (!pinned_) throw std::invalid_argument("pinned_positions given but no vertices are pinned");
     if (pinned_positions->rows() != static_cast<Eigen::Index>(pinned_->size())) {
       throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
+    }
+    if (!pinned_positions->allFinite()) {
+      throw std::invalid_argument("pinned_positions: contains NaN or infinity");
     }
     fixed_pos.topRows(pinned_positions->rows()) = *pinned_positions;
     s0 = pinned_->size();

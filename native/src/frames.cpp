@@ -5,6 +5,9 @@
 #include <stdexcept>
 #include <string>
 
+#include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
+
 namespace matdeform {
 
 Eigen::Vector3d fourth_vertex(const Eigen::Vector3d& a, const Eigen::Vector3d& b,
@@ -29,11 +32,13 @@ Matrix3Array deformation_gradients(const Vertices& rest, const Vertices& deforme
   if (rest.rows() != deformed.rows()) {
     throw std::invalid_argument("deformed must have as many vertices as rest");
   }
+  validate_mesh(rest, faces);
+  if (!deformed.allFinite()) throw std::invalid_argument("deformed: contains NaN or infinity");
   const Eigen::Index m = faces.rows();
   Matrix3Array out(static_cast<size_t>(m));
   bool degenerate = false;
   Eigen::Index bad = -1;
-#pragma omp parallel for schedule(static) if (m > 20000)
+#pragma omp parallel for schedule(static) num_threads(num_threads()) if (m > 20000)
   for (Eigen::Index i = 0; i < m; ++i) {
     const int a = faces(i, 0), b = faces(i, 1), c = faces(i, 2);
     const Eigen::Matrix3d V = face_frame(rest.row(a), rest.row(b), rest.row(c));

@@ -8,6 +8,7 @@
 
 #include "matdeform/frames.hpp"
 #include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
 #include "matdeform/transforms.hpp"
 
 namespace matdeform {
@@ -28,21 +29,103 @@ void validate_inputs(const Vertices& rest, const Faces& faces, const IndexPairs&
     if (!poses[s].allFinite()) {
       throw std::invalid_argument("poses[" + std::to_string(s) + "]: non-finite coordinate");
     }
+    if (poses[s].rows() > 0 &&
+        (poses[s].colwise().maxCoeff() - poses[s].colwise().minCoeff()).maxCoeff() > kMaxMeshSize) {
+      throw std::invalid_argument("poses[" + std::to_string(s) +
+                                  "]: larger than 1e50 across: rescale it with the mesh");
+    }
   }
+  check_indices(pairs, faces.rows(), "pairs");
+}
+
+// Inverse rest frame of every face (shared by all poses); throws for a degenerate rest face,
+// naming the first one.
+Matrix3Array inverse_rest_frames(const Vertices& rest, const Faces& faces) {
   const Eigen::Index m = faces.rows();
-  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= m)) {
-    throw std::invalid_argument("pairs: face index out of range [0, " + std::to_string(m) + ")");
+  Matrix3Array inv(static_cast<size_t>(m));
+  std::vector<char> degenerate(static_cast<size_t>(m), 0);
+#pragma omp parallel for schedule(static) num_threads(num_threads())
+  for (Eigen::Index i = 0; i < m; ++i) {
+    const Eigen::Matrix3d V =
+        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
+    const Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
+    degenerate[static_cast<size_t>(i)] = !lu.isInvertible();
+    inv[static_cast<size_t>(i)] =
+        lu.isInvertible() ? Eigen::Matrix3d(lu.inverse()) : Eigen::Matrix3d::Identity();
+  }
+  const auto bad = std::find(degenerate.begin(), degenerate.end(), 1);
+  if (bad != degenerate.end()) {
+    throw std::invalid_argument("rest face " + std::to_string(bad - degenerate.begin()) +
+                                " is degenerate (zero area)");
+  }
+  return inv;
+}
+
+// Deformation gradient of face i in a pose: its frame there times the inverse rest frame.
+Eigen::Matrix3d pose_gradient(const Vertices& pose, const Faces& faces,
+                              const Matrix3Array& rest_inv, Eigen::Index i) {
+  return face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
+         rest_inv[static_cast<size_t>(i)];
+}
+
+// Number of dual edges at each face.
+Eigen::VectorXd face_degrees(Eigen::Index num_faces, const IndexPairs& pairs) {
+  Eigen::VectorXd degree = Eigen::VectorXd::Zero(num_faces);
+  for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
+    degree(pairs(e, 0)) += 1.0;
+    degree(pairs(e, 1)) += 1.0;
+  }
+  return degree;
+}
+
+// `passes` passes of the face-graph averaging: every row of x (one per face) becomes the mean of
+// itself and its dual-edge neighbours. degree from face_degrees.
+void average_over_face_graph(const IndexPairs& pairs, const Eigen::VectorXd& degree, int passes,
+                             RowMatrix* x) {
+  RowMatrix next(x->rows(), x->cols());
+  for (int p = 0; p < passes; ++p) {
+    next = *x;
+    for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
+      next.row(pairs(e, 0)) += x->row(pairs(e, 1));
+      next.row(pairs(e, 1)) += x->row(pairs(e, 0));
+    }
+    for (Eigen::Index f = 0; f < x->rows(); ++f) next.row(f) /= 1.0 + degree(f);
+    x->swap(next);
   }
 }
 
-// Of the two axis-angle vectors describing the same rotation when the angle is near pi
-// (w and w - 2 pi w/|w|), the one closest to `ref`. Keeps log differences across an edge small
-// where the principal log jumps.
-Eigen::Vector3d closest_log(const Eigen::Vector3d& w, const Eigen::Vector3d& ref) {
+// Polar decomposition of a pose's deformation gradient T = S R; false for a face collapsed in
+// the pose (det T <= 0), which is then skipped. Never throws: it runs inside OpenMP loops.
+bool pose_polar(const Eigen::Matrix3d& T, Eigen::Matrix3d* S, Eigen::Matrix3d* R) {
+  if (!(T.determinant() > 0.0)) return false;
+  try {
+    polar_decompose(T, S, R);
+  } catch (const std::invalid_argument&) {
+    return false;  // only for gradients beyond double range; validate_inputs bounds the poses
+  }
+  return true;
+}
+
+// The other axis-angle vector of the same rotation, w - 2 pi w/|w| (the one nearest w).
+Eigen::Vector3d other_log(const Eigen::Vector3d& w) {
   const double angle = w.norm();
-  if (angle < 1e-12) return w;
-  const Eigen::Vector3d alt = w - (2.0 * kPi / angle) * w;
-  return (alt - ref).squaredNorm() < (w - ref).squaredNorm() ? alt : w;
+  return angle < 1e-12 ? w : Eigen::Vector3d(w - (2.0 * kPi / angle) * w);
+}
+
+// log Q_j - log Q_i with each log free to take either of its two nearest representatives (w and
+// other_log(w)): the shortest of the four differences. Keeps the difference small where the
+// principal log jumps at angle pi, and is the same (negated) when i and j swap, so it does not
+// depend on how faces are numbered. (Moving only log Q_j towards log Q_i was order-dependent:
+// relabelling a mesh changed learned values by up to 8.)
+Eigen::Vector3d log_difference(const Eigen::Vector3d& wi, const Eigen::Vector3d& wj) {
+  const Eigen::Vector3d a[2] = {wi, other_log(wi)}, b[2] = {wj, other_log(wj)};
+  Eigen::Vector3d best = wj - wi;
+  for (const auto& x : a) {
+    for (const auto& y : b) {
+      if ((y - x).squaredNorm() < best.squaredNorm()) best = y - x;
+    }
+  }
+  return best;
 }
 
 // numpy-style linear-interpolation percentile (q in [0,100]) of all entries of x.
@@ -69,26 +152,7 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
   const Eigen::Index m = faces.rows();
   const Eigen::Index num_edges = pairs.rows();
 
-  // Rest frames are shared by all poses: invert them once.
-  Matrix3Array rest_inv(static_cast<size_t>(m));
-  Eigen::Index degenerate = -1;
-#pragma omp parallel for schedule(static)
-  for (Eigen::Index i = 0; i < m; ++i) {
-    const Eigen::Matrix3d V =
-        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
-    if (!lu.isInvertible()) {
-#pragma omp critical
-      degenerate = i;
-      rest_inv[static_cast<size_t>(i)].setIdentity();
-    } else {
-      rest_inv[static_cast<size_t>(i)] = lu.inverse();
-    }
-  }
-  if (degenerate >= 0) {
-    throw std::invalid_argument("rest face " + std::to_string(degenerate) +
-                                " is degenerate (zero area)");
-  }
+  const Matrix3Array rest_inv = inverse_rest_frames(rest, faces);
 
   Distortions out;
   out.shear = Eigen::VectorXd::Zero(m);
@@ -98,21 +162,17 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
   std::vector<char> valid(static_cast<size_t>(m));
 
   for (const Vertices& pose : poses) {
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) num_threads(num_threads())
     for (Eigen::Index i = 0; i < m; ++i) {
       const auto u = static_cast<size_t>(i);
-      const Eigen::Matrix3d T =
-          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
-          rest_inv[u];
-      valid[u] = T.determinant() > 0.0;
-      if (!valid[u]) continue;
       Eigen::Matrix3d S, R;
-      polar_decompose(T, &S, &R);
+      valid[u] = pose_polar(pose_gradient(pose, faces, rest_inv, i), &S, &R);
+      if (!valid[u]) continue;
       Q[u] = R;
       out.shear(i) = std::max(out.shear(i), (S - Eigen::Matrix3d::Identity()).squaredNorm());
       if (anisotropic && frame == AxisFrame::kWorldLogDifference) logs[u] = rotation_log(R);
     }
-#pragma omp parallel for schedule(static)
+#pragma omp parallel for schedule(static) num_threads(num_threads())
     for (Eigen::Index e = 0; e < num_edges; ++e) {
       const auto i = static_cast<size_t>(pairs(e, 0)), j = static_cast<size_t>(pairs(e, 1));
       if (!valid[i] || !valid[j]) continue;
@@ -120,9 +180,8 @@ Distortions learn_distortions(const Vertices& rest, const Faces& faces, const In
         out.bend(e, 0) = std::max(out.bend(e, 0), (Q[i] - Q[j]).squaredNorm());
         continue;
       }
-      const Eigen::Vector3d w = frame == AxisFrame::kRest
-                                    ? rotation_log(Q[i].transpose() * Q[j])
-                                    : Eigen::Vector3d(closest_log(logs[j], logs[i]) - logs[i]);
+      const Eigen::Vector3d w = frame == AxisFrame::kRest ? rotation_log(Q[i].transpose() * Q[j])
+                                                          : log_difference(logs[i], logs[j]);
       for (int a = 0; a < 3; ++a) out.bend(e, a) = std::max(out.bend(e, a), w(a) * w(a));
     }
   }
@@ -165,34 +224,23 @@ Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexP
   if (d.shear.size() != num_faces || d.bend.rows() != pairs.rows()) {
     throw std::invalid_argument("distortions do not match num_faces / pairs");
   }
-  if (pairs.size() > 0 && (pairs.minCoeff() < 0 || pairs.maxCoeff() >= num_faces)) {
-    throw std::invalid_argument("pairs: face index out of range");
+  check_indices(pairs, num_faces, "pairs");
+  if (!d.bend.allFinite() || !d.shear.allFinite()) {
+    throw std::invalid_argument("distortions: contain NaN or infinity");
   }
   if (passes == 0) return d;
   const Eigen::Index m = num_faces, num_edges = pairs.rows(), cols = d.bend.cols();
   // Face values: column 0..cols-1 bending, column cols shear; smoothed together.
   RowMatrix x = RowMatrix::Zero(m, cols + 1);
-  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
+  const Eigen::VectorXd degree = face_degrees(m, pairs);
   for (Eigen::Index e = 0; e < num_edges; ++e) {
-    for (int k = 0; k < 2; ++k) {
-      x.row(pairs(e, k)).head(cols) += d.bend.row(e);
-      degree(pairs(e, k)) += 1.0;
-    }
+    for (int k = 0; k < 2; ++k) x.row(pairs(e, k)).head(cols) += d.bend.row(e);
   }
   for (Eigen::Index f = 0; f < m; ++f) {
     if (degree(f) > 0) x.row(f).head(cols) /= degree(f);
   }
   x.col(cols) = d.shear;
-  RowMatrix next(m, cols + 1);
-  for (int p = 0; p < passes; ++p) {
-    next = x;
-    for (Eigen::Index e = 0; e < num_edges; ++e) {
-      next.row(pairs(e, 0)) += x.row(pairs(e, 1));
-      next.row(pairs(e, 1)) += x.row(pairs(e, 0));
-    }
-    for (Eigen::Index f = 0; f < m; ++f) next.row(f) /= 1.0 + degree(f);
-    x.swap(next);
-  }
+  average_over_face_graph(pairs, degree, passes, &x);
   Distortions out;
   out.shear = x.col(cols);
   out.bend.resize(num_edges, cols);
@@ -206,52 +254,26 @@ RowMatrix rotation_spread(const Vertices& rest, const Faces& faces, const IndexP
                           const std::vector<Vertices>& poses, int passes) {
   if (passes < 0) throw std::invalid_argument("passes must be >= 0");
   validate_inputs(rest, faces, pairs, poses);
-  const Eigen::Index m = faces.rows(), num_edges = pairs.rows();
+  const Eigen::Index m = faces.rows();
   const auto l = static_cast<Eigen::Index>(poses.size());
   RowMatrix out = RowMatrix::Zero(m, l);
   if (passes == 0) return out;
-  Matrix3Array rest_inv(static_cast<size_t>(m));
-  for (Eigen::Index i = 0; i < m; ++i) {
-    const Eigen::Matrix3d V =
-        face_frame(rest.row(faces(i, 0)), rest.row(faces(i, 1)), rest.row(faces(i, 2)));
-    Eigen::FullPivLU<Eigen::Matrix3d> lu(V);
-    if (!lu.isInvertible()) {
-      throw std::invalid_argument("rest face " + std::to_string(i) + " is degenerate (zero area)");
-    }
-    rest_inv[static_cast<size_t>(i)] = lu.inverse();
-  }
-  Eigen::VectorXd degree = Eigen::VectorXd::Zero(m);
-  for (Eigen::Index e = 0; e < num_edges; ++e) {
-    degree(pairs(e, 0)) += 1.0;
-    degree(pairs(e, 1)) += 1.0;
-  }
-#pragma omp parallel for schedule(dynamic)
+  const Matrix3Array rest_inv = inverse_rest_frames(rest, faces);
+  const Eigen::VectorXd degree = face_degrees(m, pairs);
+#pragma omp parallel for schedule(dynamic) num_threads(num_threads())
   for (Eigen::Index s = 0; s < l; ++s) {
     const Vertices& pose = poses[static_cast<size_t>(s)];
     // Columns 0..8: weight * Q (row-major), column 9: weight (1, or 0 for a collapsed face).
     RowMatrix x = RowMatrix::Zero(m, 10);
     for (Eigen::Index i = 0; i < m; ++i) {
-      const Eigen::Matrix3d T =
-          face_frame(pose.row(faces(i, 0)), pose.row(faces(i, 1)), pose.row(faces(i, 2))) *
-          rest_inv[static_cast<size_t>(i)];
-      if (!(T.determinant() > 0.0)) continue;
       Eigen::Matrix3d S, R;
-      polar_decompose(T, &S, &R);
+      if (!pose_polar(pose_gradient(pose, faces, rest_inv, i), &S, &R)) continue;
       for (int a = 0; a < 3; ++a) {
         for (int b = 0; b < 3; ++b) x(i, 3 * a + b) = R(a, b);
       }
       x(i, 9) = 1.0;
     }
-    RowMatrix next(m, 10);
-    for (int p = 0; p < passes; ++p) {
-      next = x;
-      for (Eigen::Index e = 0; e < num_edges; ++e) {
-        next.row(pairs(e, 0)) += x.row(pairs(e, 1));
-        next.row(pairs(e, 1)) += x.row(pairs(e, 0));
-      }
-      for (Eigen::Index i = 0; i < m; ++i) next.row(i) /= 1.0 + degree(i);
-      x.swap(next);
-    }
+    average_over_face_graph(pairs, degree, passes, &x);
     for (Eigen::Index i = 0; i < m; ++i) {
       const double w = x(i, 9);
       // Weighted mean of unit-norm-squared-3 matrices: 3 - |mean|^2 is their variance, >= 0.

@@ -5,13 +5,26 @@
 #include <array>
 #include <cmath>
 #include <numeric>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
 namespace matdeform {
 
+void check_indices(const int* data, Eigen::Index size, Eigen::Index upper, const char* name) {
+  for (Eigen::Index i = 0; i < size; ++i) {
+    if (data[i] < 0 || data[i] >= upper) {
+      throw std::invalid_argument(std::string(name) + ": index " + std::to_string(data[i]) +
+                                  " outside [0, " + std::to_string(upper) + ")");
+    }
+  }
+}
+
 DualEdges dual_edges(const Faces& faces) {
   const Eigen::Index m = faces.rows();
+  if (faces.size() > 0 && faces.minCoeff() < 0) {
+    throw std::invalid_argument("faces: negative vertex index " + std::to_string(faces.minCoeff()));
+  }
   // (min vertex, max vertex, face) for every face side; sorting groups faces by mesh edge.
   std::vector<std::array<int, 3>> sides;
   sides.reserve(static_cast<size_t>(3 * m));
@@ -58,6 +71,16 @@ DualEdges dual_edges(const Faces& faces) {
 void validate_mesh(const Vertices& vertices, const Faces& faces) {
   const Eigen::Index n = vertices.rows();
   if (!vertices.allFinite()) throw std::invalid_argument("vertices contain NaN or infinity");
+  if (n > 0) {
+    const double size = (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()).maxCoeff();
+    if (size == 0.0) throw std::invalid_argument("vertices: all vertices coincide");
+    if (!(size >= kMinMeshSize && size <= kMaxMeshSize)) {
+      std::ostringstream msg;
+      msg << "vertices: the mesh is " << size << " across; expected " << kMinMeshSize << " to "
+          << kMaxMeshSize << ": rescale the mesh (only its shape matters)";
+      throw std::invalid_argument(msg.str());
+    }
+  }
   for (Eigen::Index f = 0; f < faces.rows(); ++f) {
     for (int k = 0; k < 3; ++k) {
       if (faces(f, k) < 0 || faces(f, k) >= n) {
@@ -72,27 +95,35 @@ void validate_mesh(const Vertices& vertices, const Faces& faces) {
   }
 }
 
-namespace {
-int find_root(std::vector<int>& parent, int x) {
-  while (parent[static_cast<size_t>(x)] != x) {
-    parent[static_cast<size_t>(x)] = parent[static_cast<size_t>(parent[static_cast<size_t>(x)])];
-    x = parent[static_cast<size_t>(x)];
-  }
+DisjointSets::DisjointSets(int n) : parent_(static_cast<size_t>(std::max(n, 0))) {
+  std::iota(parent_.begin(), parent_.end(), 0);
+}
+
+int DisjointSets::find(int x) {
+  auto p = [this](int i) -> int& { return parent_[static_cast<size_t>(i)]; };
+  while (p(x) != x) x = p(x) = p(p(x));
   return x;
 }
-}  // namespace
+
+bool DisjointSets::unite(int a, int b) {
+  // Both roots are taken now, after any earlier link: linking a stale root would detach the
+  // part of its set that was linked in the meantime.
+  a = find(a);
+  b = find(b);
+  if (a == b) return false;
+  parent_[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
+  return true;
+}
 
 std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* count) {
-  std::vector<int> parent(static_cast<size_t>(num_faces));
-  std::iota(parent.begin(), parent.end(), 0);
-  for (Eigen::Index e = 0; e < pairs.rows(); ++e) {
-    const int a = find_root(parent, pairs(e, 0)), b = find_root(parent, pairs(e, 1));
-    if (a != b) parent[static_cast<size_t>(std::max(a, b))] = std::min(a, b);
-  }
+  if (num_faces < 0) throw std::invalid_argument("num_faces: expected >= 0");
+  check_indices(pairs, num_faces, "pairs");
+  DisjointSets sets(num_faces);
+  for (Eigen::Index e = 0; e < pairs.rows(); ++e) sets.unite(pairs(e, 0), pairs(e, 1));
   std::vector<int> label(static_cast<size_t>(num_faces), -1);
   int next = 0;
   for (int f = 0; f < num_faces; ++f) {
-    const int r = find_root(parent, f);
+    const int r = sets.find(f);
     if (label[static_cast<size_t>(r)] < 0) label[static_cast<size_t>(r)] = next++;
     label[static_cast<size_t>(f)] = label[static_cast<size_t>(r)];
   }
@@ -101,6 +132,7 @@ std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* co
 }
 
 Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces) {
+  check_indices(faces, vertices.rows(), "faces");
   Eigen::VectorXd out(faces.rows());
   for (Eigen::Index f = 0; f < faces.rows(); ++f) {
     const Eigen::Vector3d a = vertices.row(faces(f, 0)), b = vertices.row(faces(f, 1)),

@@ -5,11 +5,14 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <numeric>
 #include <stdexcept>
 #include <string>
 
 #include "matdeform/frames.hpp"
+#include "matdeform/mesh.hpp"
+#include "matdeform/stiffness.hpp"
 #include "simd.hpp"
 #include "sparse_cholesky.hpp"
 #include "task_pool.hpp"
@@ -18,11 +21,6 @@ namespace matdeform {
 
 namespace {
 using Col3 = Eigen::Matrix<double, Eigen::Dynamic, 3>;  // column-major (rows,3)
-
-int find_root(std::vector<int>& parent, int x) {
-  while (parent[x] != x) x = parent[x] = parent[parent[x]];
-  return x;
-}
 
 // Position of entry e (column-major) of face i's matrix in the grouped layout.
 inline size_t group_index(int i, int e) {
@@ -121,6 +119,7 @@ struct PoissonRepositioner::Impl {
   // The solver's row order: free vertex f is permuted row free_row[f].
   std::vector<int> free_row;
 
+  mutable std::mutex mutex;           // guards the workspace below
   mutable std::vector<double> local;  // grouped layout, kGroupStride per group
   mutable std::vector<double> y4;     // right-hand side, then solution, (nf,4) permuted rows
   mutable Col3 fixed_pos;
@@ -136,6 +135,8 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   d.rest = vertices;
   d.faces = faces;
   if (shear.size() != d.m) throw std::invalid_argument("shear: one value per face expected");
+  validate_mesh(vertices, faces);
+  check_stiffness(shear.data(), shear.size(), "shear");
 
   std::vector<char> is_fixed(d.n, 0);
   for (int v : fixed) {
@@ -183,21 +184,17 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   }
 
   // Components over usable faces; loose vertices (no usable face) keep their rest position.
-  std::vector<int> parent(d.n);
-  std::iota(parent.begin(), parent.end(), 0);
+  DisjointSets sets(d.n);
   std::vector<char> touched(d.n, 0);
   for (int i = 0; i < d.m; ++i) {
     if (!d.usable[i]) continue;
     for (int l = 0; l < 3; ++l) touched[faces(i, l)] = 1;
-    const int r0 = find_root(parent, faces(i, 0));
-    for (int l = 1; l < 3; ++l) {
-      const int r = find_root(parent, faces(i, l));
-      if (r != r0) parent[std::max(r, r0)] = std::min(r, r0);
-    }
+    sets.unite(faces(i, 0), faces(i, 1));
+    sets.unite(faces(i, 0), faces(i, 2));
   }
   std::vector<char> root_has_fixed(d.n, 0);
   for (int v = 0; v < d.n; ++v) {
-    if (is_fixed[v]) root_has_fixed[find_root(parent, v)] = 1;
+    if (is_fixed[v]) root_has_fixed[sets.find(v)] = 1;
   }
 
   d.fixed_all = fixed;
@@ -212,7 +209,7 @@ PoissonRepositioner::PoissonRepositioner(const Vertices& vertices, const Faces& 
   std::vector<int> root_gauge(d.n, -1);
   for (int v = 0; v < d.n; ++v) {
     if (!touched[v]) continue;
-    const int r = find_root(parent, v);
+    const int r = sets.find(v);
     if (root_has_fixed[r]) continue;
     if (root_gauge[r] < 0) {
       // Lowest vertex of the component anchors its translation during the solve.
@@ -320,6 +317,7 @@ void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fix
 void PoissonRepositioner::solve(const TargetBlocks& targets, const Vertices& fixed_positions,
                                 Vertices* out) const {
   const Impl& d = *impl_;
+  const std::lock_guard<std::mutex> lock(d.mutex);
   if (fixed_positions.rows() != d.num_user_fixed) {
     throw std::invalid_argument("pinned_positions: one row per pinned vertex expected");
   }

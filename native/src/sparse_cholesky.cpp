@@ -3,7 +3,9 @@
 #include <cholmod.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstring>
+#include <mutex>
 #include <queue>
 #include <stdexcept>
 #include <string>
@@ -19,6 +21,12 @@ namespace matdeform {
 namespace {
 
 constexpr int kWidth = 4;  // right-hand sides per pass; 3 coordinates fill it with one pad
+
+// What the user can change when a factorisation fails on a system that is positive definite in
+// exact arithmetic (every caller removes the null space first).
+constexpr const char* kIllConditioned =
+    "the linear system is too ill-conditioned to factor in double precision: reduce the "
+    "stiffness ratio (max/min) or remove faces far smaller than their neighbours";
 
 // Forward pass L y = b over rows [b, e) in gather form: y_i = (b_i - sum_j<i L_ij y_j) / L_ii.
 // All j are descendants of i in the elimination tree. Four partial sums break the FMA latency
@@ -131,9 +139,9 @@ struct Substitution {
     for (int j = 0; j < n; ++j) {
       const int b = Lp[j], e = Lp[j] + Lnz[j];
       // CHOLMOD keeps the diagonal first in each simplicial column.
-      if (e <= b || Li[b] != j || !(Lx[b] > 0.0)) {
-        throw std::runtime_error("unexpected CHOLMOD factor layout");
-      }
+      if (e <= b || Li[b] != j) throw std::runtime_error("unexpected CHOLMOD factor layout");
+      // A zero, negative or NaN pivot: CHOLMOD lost positive definiteness to round-off.
+      if (!(Lx[b] > 0.0) || !std::isfinite(Lx[b])) throw std::invalid_argument(kIllConditioned);
       dinv[j] = 1.0 / Lx[b];
       for (int q = b + 1; q < e; ++q) {
         const int i = Li[q];
@@ -296,9 +304,20 @@ struct Substitution {
   }
 };
 
+// One factorisation at a time in the process. The supernodal factorisation calls BLAS, and
+// the serial OpenBLAS that Debian ships (libopenblas0-serial) is not safe for concurrent
+// calls: two deformers built on two threads at once got wrong factors (weights off by 0.6)
+// or "not positive definite". Factorisations are the expensive, once-per-bind part, so running
+// them one after another costs little; solves never take this lock.
+std::mutex& factor_mutex() {
+  static std::mutex m;
+  return m;
+}
+
 }  // namespace
 
 struct SparseCholesky::Impl {
+  std::mutex mutex;  // guards every mutable member (and sub's) during a solve
   cholmod_common c;
   cholmod_factor* L = nullptr;
   mutable cholmod_dense* X = nullptr;
@@ -335,6 +354,9 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   if (n_ == 0) return;
   Eigen::SparseMatrix<double> A = A_in.triangularView<Eigen::Lower>();
   A.makeCompressed();
+  for (Eigen::Index i = 0; i < A.nonZeros(); ++i) {
+    if (!std::isfinite(A.valuePtr()[i])) throw std::invalid_argument(kIllConditioned);
+  }
   cholmod_common* c = &impl_->c;
   cholmod_sparse* As =
       cholmod_allocate_sparse(static_cast<size_t>(n_), static_cast<size_t>(n_),
@@ -343,21 +365,29 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   std::memcpy(As->p, A.outerIndexPtr(), sizeof(int) * static_cast<size_t>(n_ + 1));
   std::memcpy(As->i, A.innerIndexPtr(), sizeof(int) * static_cast<size_t>(A.nonZeros()));
   std::memcpy(As->x, A.valuePtr(), sizeof(double) * static_cast<size_t>(A.nonZeros()));
-  impl_->L = cholmod_analyze(As, c);
-  if (impl_->L) cholmod_factorize(As, impl_->L, c);
-  int status = c->status;
-  // Supernodal factorisation is fastest to compute, but for a handful of right-hand sides a
-  // simplicial solve is faster (no BLAS call overhead per supernode): convert once here.
-  if (impl_->L && status >= CHOLMOD_OK && status != CHOLMOD_NOT_POSDEF && impl_->L->is_super) {
-    cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, impl_->L, c);
+  int status;
+  {
+    const std::lock_guard<std::mutex> lock(factor_mutex());
+    impl_->L = cholmod_analyze(As, c);
+    if (impl_->L) cholmod_factorize(As, impl_->L, c);
     status = c->status;
+    // Supernodal factorisation is fastest to compute, but for a handful of right-hand sides a
+    // simplicial solve is faster (no BLAS call overhead per supernode): convert once here.
+    if (impl_->L && status >= CHOLMOD_OK && status != CHOLMOD_NOT_POSDEF && impl_->L->is_super) {
+      cholmod_change_factor(CHOLMOD_REAL, 1, 0, 1, 1, impl_->L, c);
+      status = c->status;
+    }
   }
   cholmod_free_sparse(&As, c);
-  if (!impl_->L || status == CHOLMOD_NOT_POSDEF || status < CHOLMOD_OK) {
-    throw std::runtime_error("sparse Cholesky factorisation failed (CHOLMOD status " +
-                             std::to_string(status) +
-                             "): the system is singular or not positive definite");
+  if (impl_->L && status == CHOLMOD_NOT_POSDEF) {
+    throw std::invalid_argument(kIllConditioned);
   }
+  if (!impl_->L || status < CHOLMOD_OK) {
+    // Out of memory or a CHOLMOD limit: nothing the input could fix but its size.
+    throw std::runtime_error("sparse Cholesky factorisation failed (CHOLMOD status " +
+                             std::to_string(status) + ")");
+  }
+
   if (reuse == Reuse::PerPose) {
     impl_->sub = std::make_unique<Substitution>(impl_->L);
     cholmod_free_factor(&impl_->L, c);  // the copy above is all the solves need
@@ -368,6 +398,7 @@ SparseCholesky::~SparseCholesky() = default;
 
 void SparseCholesky::solve(const double* B, double* X, int nrhs) const {
   if (n_ == 0 || nrhs == 0) return;
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   if (impl_->sub) {
     impl_->sub->solve(B, X, nrhs);
     return;
@@ -397,10 +428,12 @@ const std::vector<int>& SparseCholesky::permutation() const {
 void SparseCholesky::solve_permuted4(double* Y) const {
   if (n_ == 0) return;
   if (!impl_->sub) throw std::logic_error("solve_permuted4(): not a PerPose factor");
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   impl_->sub->run(Y);
 }
 
 int SparseCholesky::substitution_threads() const {
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
   return impl_->sub ? impl_->sub->sched.threads : 0;
 }
 

@@ -14,8 +14,9 @@ class SparseCholesky {
   // CHOLMOD's factor and solve (cheapest to set up).
   enum class Reuse { Once, PerPose };
 
-  // A: symmetric positive definite; only its lower triangle is read. Throws std::runtime_error
-  // if CHOLMOD finds it not positive definite.
+  // A: symmetric positive definite; only its lower triangle is read. Throws
+  // std::invalid_argument (a message saying what to change) if A has a non-finite entry or is
+  // not positive definite in double precision, std::runtime_error if CHOLMOD fails otherwise.
   SparseCholesky(const Eigen::SparseMatrix<double>& A, Reuse reuse);
   ~SparseCholesky();
   SparseCholesky(const SparseCholesky&) = delete;
@@ -23,7 +24,14 @@ class SparseCholesky {
 
   // Solves A X = B for nrhs column-major columns of length rows(). Reuses its workspace between
   // calls, so the steady state allocates nothing. PerPose factors use up to num_threads()
-  // threads. Not thread-safe.
+  // threads.
+  //
+  // Ownership: a factor belongs to one solver object, which keeps it for its lifetime. The
+  // factor's own mutable state (workspace, CHOLMOD's buffers, the substitution schedule that is
+  // rebuilt when num_threads() changes) is guarded by an internal mutex, so solve() and
+  // solve_permuted4() are safe from several threads: concurrent calls on one factor run one
+  // after another. Buffers the owning solver keeps per call (right-hand sides it assembles in
+  // place) are the solver's to guard.
   void solve(const double* B, double* X, int nrhs) const;
   int rows() const { return n_; }
 

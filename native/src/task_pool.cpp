@@ -5,6 +5,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstdint>
+#include <exception>
 #include <memory>
 #include <mutex>
 #include <thread>
@@ -27,10 +28,19 @@ namespace {
 // bridge the serial gaps inside one deform(), short enough not to compete with the host after it.
 constexpr auto kSpin = std::chrono::microseconds(500);
 
+// True on pool workers, and on a caller while it runs a job: run_tasks() from there (a task
+// that calls it again) runs serially instead of re-entering the pool.
+thread_local bool t_in_pool = false;
+
 class TaskPool {
  public:
   explicit TaskPool(int workers) {
-    for (int w = 0; w < workers; ++w) threads_.emplace_back([this] { work(); });
+    for (int w = 0; w < workers; ++w) {
+      threads_.emplace_back([this] {
+        t_in_pool = true;
+        work();
+      });
+    }
   }
   ~TaskPool() {
     {
@@ -61,11 +71,13 @@ class TaskPool {
       generation_.fetch_add(1, std::memory_order_release);
     }
     if (sleepers_.load(std::memory_order_acquire) > 0) cv_.notify_all();
-    for (int i; (i = next_.fetch_add(1, std::memory_order_relaxed)) < count;) {
-      task(i);
-      done_.fetch_add(1, std::memory_order_release);
-    }
+    claim(task, count);
     while (done_.load(std::memory_order_acquire) < count) MD_CPU_RELAX();
+    if (error_) {  // every task has finished: nothing refers to the job any more
+      std::exception_ptr e = std::move(error_);
+      error_ = nullptr;
+      std::rethrow_exception(e);
+    }
   }
 
  private:
@@ -96,12 +108,23 @@ class TaskPool {
         job = job_;
         count = count_;
       }
-      for (int i; (i = next_.fetch_add(1, std::memory_order_relaxed)) < count;) {
-        (*job)(i);
-        done_.fetch_add(1, std::memory_order_release);
-      }
+      claim(*job, count);
       std::lock_guard<std::mutex> lk(m_);
       --active_;
+    }
+  }
+
+  // Runs tasks until none is left. A task's exception is kept (the first one) for run() to
+  // rethrow on the calling thread; an exception escaping a worker would end the process.
+  void claim(const std::function<void(int)>& task, int count) {
+    for (int i; (i = next_.fetch_add(1, std::memory_order_relaxed)) < count;) {
+      try {
+        task(i);
+      } catch (...) {
+        std::lock_guard<std::mutex> lk(error_mutex_);
+        if (!error_) error_ = std::current_exception();
+      }
+      done_.fetch_add(1, std::memory_order_release);
     }
   }
 
@@ -114,35 +137,51 @@ class TaskPool {
   int count_ = 0;
   const std::function<void(int)>* job_ = nullptr;
   bool stop_ = false;
+  std::mutex error_mutex_;
+  std::exception_ptr error_;  // first exception of the current job
 };
 
-std::unique_ptr<TaskPool>& the_pool() {
+// The one pool, and the lock its user holds. try_lock only: a second caller never waits for
+// the workers (it could be a thread the first caller waits for), it runs serially instead.
+std::mutex& pool_mutex() {
+  static std::mutex m;
+  return m;
+}
+std::unique_ptr<TaskPool>& the_pool() {  // guarded by pool_mutex()
   static std::unique_ptr<TaskPool> pool;
   return pool;
 }
 
-std::unique_ptr<TaskPool>& pool_for(int workers) {
-  std::unique_ptr<TaskPool>& pool = the_pool();
-  if (!pool || pool->workers() != workers) {
-    pool.reset();  // joins the old workers first
-    pool = std::make_unique<TaskPool>(workers);
-  }
-  return pool;
-}
+struct InPool {
+  InPool() { t_in_pool = true; }
+  ~InPool() { t_in_pool = false; }
+  InPool(const InPool&) = delete;
+  InPool& operator=(const InPool&) = delete;
+};
 
 }  // namespace
 
 void run_tasks(int count, const std::function<void(int)>& task) {
   const int threads = num_threads();
-  if (threads < 2 || count < 2) {
+  std::unique_lock<std::mutex> lk(pool_mutex(), std::defer_lock);
+  if (threads < 2 || count < 2 || t_in_pool || !lk.try_lock()) {
     for (int i = 0; i < count; ++i) task(i);
     return;
   }
-  pool_for(threads - 1)->run(count, task);
+  std::unique_ptr<TaskPool>& pool = the_pool();
+  if (!pool || pool->workers() != threads - 1) {
+    pool.reset();  // joins the old workers first
+    pool = std::make_unique<TaskPool>(threads - 1);
+  }
+  const InPool in_pool;
+  pool->run(count, task);
 }
 
 void park_workers() {
-  if (the_pool()) the_pool()->park();
+  // Skipped while another thread holds the pool: its workers are busy, and it parks them itself
+  // (or they fall asleep after their polling window).
+  std::unique_lock<std::mutex> lk(pool_mutex(), std::try_to_lock);
+  if (lk.owns_lock() && the_pool()) the_pool()->park();
 }
 
 void parallel_ranges(int n, int min_size, int chunks, const std::function<void(int, int)>& body) {

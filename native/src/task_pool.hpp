@@ -13,8 +13,11 @@
 namespace matdeform {
 
 // Runs task(0), ..., task(count - 1) on the calling thread plus up to num_threads() - 1 pool
-// workers, and returns when all have finished. Tasks must be independent. Not reentrant: call it
-// from one thread at a time, never from inside a task.
+// workers, and returns when all have finished. Tasks must be independent. Safe from any number
+// of threads and from inside a task: the pool serves one caller at a time, and a call that finds
+// it busy (another thread's, or its own caller's from inside a task) runs its tasks serially on
+// the calling thread instead of waiting. If tasks throw, the first exception is rethrown here
+// after every task has finished.
 void run_tasks(int count, const std::function<void(int)>& task);
 
 // Tells idle workers to sleep now instead of polling for more tasks: call it when a burst of

@@ -6,11 +6,13 @@
 #include <string>
 
 #include "matdeform/mesh.hpp"
+#include "matdeform/stiffness.hpp"
 #include "sparse_cholesky.hpp"
 
 namespace matdeform {
 
 void validate_anchors(int num_faces, const AnchorList& anchors) {
+  if (num_faces < 0) throw std::invalid_argument("num_faces: expected >= 0");
   if (anchors.empty()) throw std::invalid_argument("anchors: at least one anchor is required");
   std::vector<int> owner(static_cast<size_t>(num_faces), -1);
   for (size_t a = 0; a < anchors.size(); ++a) {
@@ -35,16 +37,13 @@ void validate_anchors(int num_faces, const AnchorList& anchors) {
 
 RowMatrix harmonic_weights(int num_faces, const IndexPairs& pairs, const Eigen::VectorXd& phi,
                            const AnchorList& anchors) {
+  if (num_faces < 0) throw std::invalid_argument("num_faces: expected >= 0");
   validate_anchors(num_faces, anchors);
+  check_indices(pairs, num_faces, "pairs");
   if (phi.size() != pairs.rows()) {
     throw std::invalid_argument("bend: one value per dual edge expected");
   }
-  for (Eigen::Index e = 0; e < phi.size(); ++e) {
-    if (!std::isfinite(phi(e)) || !(phi(e) > 0.0)) {
-      throw std::invalid_argument("bend: stiffness must be finite and > 0 (dual edge " +
-                                  std::to_string(e) + ")");
-    }
-  }
+  check_stiffness(phi.data(), phi.size(), "bend");
   const int k = static_cast<int>(anchors.size());
   std::vector<int> anchor_of(static_cast<size_t>(num_faces), -1);
   for (int a = 0; a < k; ++a) {

@@ -24,6 +24,46 @@ def as_vertices(x, name: str = "vertices", rows: int | None = None) -> np.ndarra
     return np.ascontiguousarray(a)
 
 
+# The core's limits (native/include/matdeform/mesh.hpp, stiffness.hpp), checked here first for a
+# message in the caller's terms.
+MIN_MESH_SIZE, MAX_MESH_SIZE = 1e-50, 1e50
+MAX_STIFFNESS_RATIO = 1e12
+
+
+def as_mesh_vertices(x, name: str = "vertices") -> np.ndarray:
+    """as_vertices, and a bounding box whose largest extent lies in [1e-50, 1e50]."""
+    v = as_vertices(x, name)
+    if len(v):
+        size = float(np.ptp(v, axis=0).max())
+        if size == 0.0:
+            raise _fail(name, "all vertices coincide")
+        if not MIN_MESH_SIZE <= size <= MAX_MESH_SIZE:
+            raise _fail(
+                name,
+                f"the mesh is {size:.3g} across; expected {MIN_MESH_SIZE:g} to {MAX_MESH_SIZE:g}: "
+                "rescale the mesh (only its shape matters)",
+            )
+    return v
+
+
+def check_stiffness_ratio(a: np.ndarray, name: str) -> None:
+    """a > 0: max/min at most 1e12, beyond which the factorisations lose every digit."""
+    if a.size and a.max() > MAX_STIFFNESS_RATIO * a.min():
+        raise _fail(
+            name,
+            f"stiffness ratio max/min = {a.max() / a.min():.3g} is above 1e12; raise the smallest "
+            "values (only ratios matter)",
+        )
+
+
+def as_float_array(x, name: str) -> np.ndarray:
+    """float64 array of any shape (shape and value checks are the caller's)."""
+    try:
+        return np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise _fail(name, f"expected a float array ({e})") from None
+
+
 def as_int_array(x, name: str, ndim: int) -> np.ndarray:
     a = np.asarray(x)
     if a.dtype == object or not (np.issubdtype(a.dtype, np.integer) or a.size == 0):
@@ -35,15 +75,23 @@ def as_int_array(x, name: str, ndim: int) -> np.ndarray:
     return np.ascontiguousarray(a, dtype=np.int32)
 
 
-def as_faces(x, num_vertices: int, name: str = "faces") -> np.ndarray:
-    """(m,3) int32 triangles with indices in [0, num_vertices) and no repeated corner."""
+def as_triangles(x, name: str = "faces", num_vertices: int | None = None) -> np.ndarray:
+    """(m,3) int32 vertex indices >= 0 (and < num_vertices when given); m may be 0."""
     f = as_int_array(x, name, 2)
     if f.shape[1] != 3:
         raise _fail(name, f"expected triangles of shape (m,3), got {f.shape}")
+    if f.size and f.min() < 0:
+        raise _fail(name, f"indices must be >= 0, got {f.min()}")
+    if f.size and num_vertices is not None and f.max() >= num_vertices:
+        raise _fail(name, f"indices must lie in [0, {num_vertices}), got [{f.min()}, {f.max()}]")
+    return f
+
+
+def as_faces(x, num_vertices: int, name: str = "faces") -> np.ndarray:
+    """(m,3) int32 triangles with indices in [0, num_vertices) and no repeated corner."""
+    f = as_triangles(x, name, num_vertices)
     if f.shape[0] == 0:
         raise _fail(name, "expected at least one triangle, got shape (0,3)")
-    if f.min() < 0 or f.max() >= num_vertices:
-        raise _fail(name, f"indices must lie in [0, {num_vertices}), got [{f.min()}, {f.max()}]")
     bad = (f[:, 0] == f[:, 1]) | (f[:, 1] == f[:, 2]) | (f[:, 0] == f[:, 2])
     if bad.any():
         raise _fail(name, f"face {int(np.flatnonzero(bad)[0])} repeats a vertex")
@@ -85,8 +133,8 @@ def as_anchors(anchors, num_faces: int, name: str = "anchors") -> list[np.ndarra
     return out
 
 
-def as_stiffness(x, size: int, name: str) -> np.ndarray:
-    """(size,) finite float64 > 0."""
+def as_stiffness(x, size: int, name: str, solved: bool = False) -> np.ndarray:
+    """(size,) finite float64 > 0; with solved (a field a solver factors), max/min <= 1e12."""
     try:
         a = np.asarray(x, dtype=np.float64)
     except (TypeError, ValueError):
@@ -97,6 +145,8 @@ def as_stiffness(x, size: int, name: str) -> np.ndarray:
         raise _fail(name, "contains NaN or infinity")
     if (a <= 0).any():
         raise _fail(name, f"stiffness must be > 0 (min is {a.min()})")
+    if solved:
+        check_stiffness_ratio(a, name)
     return np.ascontiguousarray(a)
 
 
@@ -123,8 +173,8 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     if not np.isfinite(t).all():
         raise _fail(name, "contains NaN or infinity")
     det = _det3(t[:, :3, :3])
-    if (det <= 0).any():
-        a = int(np.flatnonzero(det <= 0)[0])
+    if not (det > 0).all():  # NaN too: a determinant that overflowed
+        a = int(np.flatnonzero(~(det > 0))[0])
         raise _fail(name, f"transform {a} has det {det[a]:.3g}; rotation and scale need det > 0")
     # abs/max rather than np.allclose: the same test (t is finite here) in 2 us instead of 13,
     # on a path that runs once per live update

@@ -8,10 +8,13 @@ from . import _core
 from ._validate import (
     as_anchors,
     as_faces,
+    as_float_array,
     as_index_set,
+    as_mesh_vertices,
     as_stiffness,
     as_transforms,
     as_vertices,
+    check_stiffness_ratio,
 )
 
 
@@ -58,12 +61,12 @@ class MaterialDeformer:
     def __init__(
         self, vertices, faces, anchors, shear=None, bend=None, pinned=None, region=None, axes=None
     ):
-        v = as_vertices(vertices)
+        v = as_mesh_vertices(vertices)
         f = as_faces(faces, v.shape[0])
         n, m = v.shape[0], f.shape[0]
         anchor_list = as_anchors(anchors, m)
         pairs, shared = _core.dual_edges(f)
-        psi = np.ones(m) if shear is None else as_stiffness(shear, m, "shear")
+        psi = np.ones(m) if shear is None else as_stiffness(shear, m, "shear", solved=True)
         phi = _bend_per_dual_edge(bend, psi, pairs, shared, n)
         self._pinned = None if pinned is None else as_index_set(pinned, n, "pinned")
         roi = None if region is None else as_index_set(region, m, "region")
@@ -72,7 +75,7 @@ class MaterialDeformer:
         if axes is None:
             ax = np.eye(3)
         else:
-            ax = np.asarray(axes, dtype=np.float64)
+            ax = as_float_array(axes, "axes")
             if ax.shape != (3, 3) or not np.isfinite(ax).all():
                 raise ValueError(f"axes: expected a finite (3,3) rotation, got shape {ax.shape}")
             if not np.allclose(ax.T @ ax, np.eye(3), atol=1e-9) or np.linalg.det(ax) < 0:
@@ -147,7 +150,7 @@ def _bend_per_dual_edge(bend, psi, pairs, shared, n) -> np.ndarray:
     e = len(pairs)
     if bend is None:
         return _core.bend_from_shear(pairs, psi)[:, None]
-    b = np.asarray(bend, dtype=np.float64)
+    b = as_float_array(bend, "bend")
     if b.ndim == 1:
         b = b[:, None]
     if b.ndim != 2 or b.shape[1] not in (1, 3) or b.shape[0] not in (e, n):
@@ -159,6 +162,7 @@ def _bend_per_dual_edge(bend, psi, pairs, shared, n) -> np.ndarray:
         raise ValueError("bend: contains NaN or infinity")
     if (b <= 0).any():
         raise ValueError(f"bend: stiffness must be > 0 (min is {b.min()})")
+    check_stiffness_ratio(b, "bend")
     if b.shape[0] == e:  # per dual edge wins when E == n
         return np.ascontiguousarray(b)
     cols = [

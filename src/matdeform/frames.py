@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_vertices
+from ._validate import as_faces, as_mesh_vertices, as_vertices
 
 
 def deformation_gradients(rest, deformed, faces) -> np.ndarray:
@@ -16,7 +16,7 @@ def deformation_gradients(rest, deformed, faces) -> np.ndarray:
     d = a + n/sqrt(|n|), n = (b-a) x (c-a). Returns (m,3,3) float64 (unitless).
     Raises ValueError for a zero-area rest face.
     """
-    v0 = as_vertices(rest, "rest")
+    v0 = as_mesh_vertices(rest, "rest")
     v1 = as_vertices(deformed, "deformed", rows=v0.shape[0])
     f = as_faces(faces, v0.shape[0])
     return _core.deformation_gradients(v0, v1, f)

@@ -23,7 +23,14 @@ from collections.abc import Sequence
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_int_array, as_vertices
+from ._validate import (
+    MAX_MESH_SIZE,
+    as_faces,
+    as_float_array,
+    as_mesh_vertices,
+    as_triangles,
+    as_vertices,
+)
 from .mesh import dual_edges
 
 __all__ = [
@@ -48,7 +55,11 @@ def _poses(poses, n: int) -> list[np.ndarray]:
         raise ValueError("poses: expected an (l,n,3) array or a sequence of (n,3) arrays")
     if not items:
         raise ValueError("poses: need at least one pose")
-    return [as_vertices(p, f"poses[{s}]", rows=n) for s, p in enumerate(items)]
+    out = [as_vertices(p, f"poses[{s}]", rows=n) for s, p in enumerate(items)]
+    for s, p in enumerate(out):
+        if len(p) and np.ptp(p, axis=0).max() > MAX_MESH_SIZE:
+            raise ValueError(f"poses[{s}]: larger than 1e50 across: rescale it with the mesh")
+    return out
 
 
 def learn_distortions(
@@ -71,7 +82,7 @@ def learn_distortions(
 
     Faces collapsed to zero area in a pose are skipped for that pose.
     """
-    v = as_vertices(vertices)
+    v = as_mesh_vertices(vertices)
     f = as_faces(faces, v.shape[0])
     p = _poses(poses, v.shape[0])
     if frame not in _FRAMES:
@@ -96,19 +107,20 @@ def smooth_distortions(faces, bend, shear, passes: int) -> tuple[np.ndarray, np.
     Returns:
         bend with the shape given, shear (m,).
     """
-    f = as_int_array(faces, "faces", 2)
-    if f.shape[1] != 3:
-        raise ValueError(f"faces: expected shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
     pairs = np.ascontiguousarray(dual_edges(f), dtype=np.int32)
-    b = np.asarray(bend, dtype=np.float64)
-    s = np.asarray(shear, dtype=np.float64)
+    b = as_float_array(bend, "bend")
+    s = as_float_array(shear, "shear")
     if b.ndim not in (1, 2) or b.shape[0] != len(pairs):
         raise ValueError(f"bend: expected shape ({len(pairs)},) or ({len(pairs)},k), got {b.shape}")
     if s.shape != (len(f),):
         raise ValueError(f"shear: expected shape ({len(f)},), got {s.shape}")
+    for name, x in (("bend", b), ("shear", s)):
+        if not np.isfinite(x).all():
+            raise ValueError(f"{name}: contains NaN or infinity")
     if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
         raise ValueError(f"passes: expected an integer >= 0, got {passes!r}")
-    b2 = np.ascontiguousarray(b.reshape(len(pairs), -1))
+    b2 = np.ascontiguousarray(b.reshape(len(pairs), b.shape[1] if b.ndim == 2 else 1))
     sb, ss = _core.smooth_distortions(b2, np.ascontiguousarray(s), pairs, int(passes))
     return np.asarray(sb).reshape(b.shape), np.asarray(ss)
 
@@ -131,7 +143,7 @@ def rotation_spread(vertices, faces, poses, passes: int) -> np.ndarray:
     Returns:
         (m,l) dimensionless, in [0, 3]; invariant to a rigid motion of each pose.
     """
-    v = as_vertices(vertices)
+    v = as_mesh_vertices(vertices)
     f = as_faces(faces, v.shape[0])
     p = _poses(poses, v.shape[0])
     if isinstance(passes, bool) or not isinstance(passes, (int, np.integer)) or passes < 0:
@@ -161,7 +173,7 @@ def stiffness_from_distortion(
         Stiffness with the shape of ``distortion``. A field with maximum below 1e-12 (round-off)
         maps to ones.
     """
-    d = np.asarray(distortion, dtype=np.float64)
+    d = as_float_array(distortion, "distortion")
     if d.ndim not in (1, 2):
         raise ValueError(f"distortion: expected shape (N,) or (N,k), got {d.shape}")
     if not np.all(np.isfinite(d)) or (d.size and d.min() < 0):
@@ -172,7 +184,7 @@ def stiffness_from_distortion(
         raise ValueError(f"clamp_percent: expected 0 <= clamp_percent < 100, got {clamp_percent}")
     if not (np.isfinite(sharpness) and sharpness >= 0):
         raise ValueError(f"sharpness: expected a finite value >= 0, got {sharpness}")
-    d2 = np.ascontiguousarray(d.reshape(d.shape[0], -1))
+    d2 = np.ascontiguousarray(d.reshape(d.shape[0], d.shape[1] if d.ndim == 2 else 1))
     s = np.asarray(
         _core.stiffness_from_distortion(d2, float(eps), float(clamp_percent), float(sharpness))
     )
@@ -225,7 +237,7 @@ def learn_stiffness(
         bend_d, shear_d = smooth_distortions(faces, bend_d, shear_d, smoothing)
     if region:
         face_d = rotation_spread(vertices, faces, poses, region).max(axis=1)
-        pairs = dual_edges(as_int_array(faces, "faces", 2))
+        pairs = dual_edges(faces)
         bend_d = 0.5 * (face_d[pairs[:, 0]] + face_d[pairs[:, 1]])
     kw = dict(eps=eps, clamp_percent=clamp_percent, sharpness=sharpness)
     return stiffness_from_distortion(bend_d, **kw), stiffness_from_distortion(shear_d, **kw)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_int_array
+from ._validate import as_int_array, as_triangles
 
 
 def dual_edges(faces, return_shared: bool = False):
@@ -16,9 +16,7 @@ def dual_edges(faces, return_shared: bool = False):
     edge shared by more than two faces (non-manifold) yields every pair of its faces. With
     return_shared, also returns shared (E,2): the two vertices of the mesh edge each pair shares.
     """
-    f = as_int_array(faces, "faces", 2)
-    if f.shape[1] != 3:
-        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
     pairs, shared = _core.dual_edges(f)
     pairs = pairs.astype(np.int64)
     if return_shared:
@@ -28,7 +26,7 @@ def dual_edges(faces, return_shared: bool = False):
 
 def boundary_and_nonmanifold_edges(faces) -> tuple[np.ndarray, np.ndarray]:
     """Mesh edges used by exactly one face, and by more than two. Each (K,2) int64, a < b."""
-    f = as_int_array(faces, "faces", 2)
+    f = as_triangles(faces)
     e = np.sort(f[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
     uniq, counts = np.unique(e, axis=0, return_counts=True)
     return uniq[counts == 1].astype(np.int64), uniq[counts > 2].astype(np.int64)
@@ -39,13 +37,12 @@ def faces_inside(faces, vertex_ids) -> np.ndarray:
 
     Turns a vertex selection (a vertex group, a ball around a point) into anchor or region faces.
     """
-    f = as_int_array(faces, "faces", 2)
-    ids = np.asarray(vertex_ids).ravel()
-    if ids.size and not np.issubdtype(ids.dtype, np.integer):
-        raise ValueError(f"vertex_ids: expected integer indices, got dtype {ids.dtype}")
+    f = as_triangles(faces)
+    ids = as_int_array(np.asarray(vertex_ids).ravel(), "vertex_ids", 1)
+    if ids.size and ids.min() < 0:
+        raise ValueError(f"vertex_ids: indices must be >= 0, got {ids.min()}")
     inside = np.zeros(int(f.max()) + 1 if f.size else 0, dtype=bool)
-    ids = ids[(ids >= 0) & (ids < inside.size)]
-    inside[ids] = True
+    inside[ids[ids < inside.size]] = True  # larger ids are in no face
     return np.flatnonzero(inside[f].all(axis=1)).astype(np.int64)
 
 
@@ -55,9 +52,7 @@ def face_components(faces) -> tuple[np.ndarray, int]:
     Returns (labels (m,) int64 in [0, count), count). Each component is deformed on its own; a
     component without an anchor keeps its rest shape.
     """
-    f = as_int_array(faces, "faces", 2)
-    if f.shape[1] != 3:
-        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
     pairs, _ = _core.dual_edges(f)
     labels, count = _core.face_components(f.shape[0], pairs)
     return labels.astype(np.int64), int(count)

@@ -6,6 +6,8 @@ import os
 
 import numpy as np
 
+from ._validate import as_triangles, as_vertices
+
 
 def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """Read vertices (n,3) float64 and triangles (m,3) int64 (0-based) from a Wavefront OBJ.
@@ -51,13 +53,17 @@ def read_obj(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
                     tris.append((idx[0], idx[j], idx[j + 1]))
     v = np.asarray(verts, dtype=np.float64).reshape(-1, 3)
     f = np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+    if not np.isfinite(v).all():
+        raise ValueError(
+            f"{path}: vertex {int(np.flatnonzero(~np.isfinite(v).all(1))[0])} is not finite"
+        )
     return v, f
 
 
 def write_obj(path: str | os.PathLike, vertices, faces) -> None:
     """Write (n,3) vertices and (m,3) 0-based triangles as an OBJ file."""
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
+    v = as_vertices(vertices)
+    f = as_triangles(faces, num_vertices=len(v))
     with open(path, "w", encoding="utf-8") as fh:
         fh.write("# written by matdeform\n")
         np.savetxt(fh, v, fmt="v %.9g %.9g %.9g")

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_int_array, as_stiffness
+from ._validate import as_float_array, as_stiffness, as_triangles
 
 
 def _faces(faces) -> np.ndarray:
-    f = as_int_array(faces, "faces", 2)
-    if f.shape[1] != 3:
-        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
+    if len(f) == 0:
+        raise ValueError("faces: expected at least one triangle, got shape (0,3)")
     return f
 
 
@@ -25,7 +25,7 @@ def bend_from_shear(faces, shear) -> np.ndarray:
 def bend_from_vertex(faces, stiffness) -> np.ndarray:
     """Per-vertex stiffness (n,) -> bend (E,): mean over the shared edge's two vertices."""
     f = _faces(faces)
-    s = np.asarray(stiffness, dtype=np.float64)
+    s = as_float_array(stiffness, "stiffness")
     if s.ndim != 1 or s.shape[0] <= f.max():
         raise ValueError(f"stiffness: expected shape (n,) with n > {f.max()}, got {s.shape}")
     pairs, shared = _core.dual_edges(f)
@@ -35,7 +35,7 @@ def bend_from_vertex(faces, stiffness) -> np.ndarray:
 def shear_from_vertex(faces, stiffness) -> np.ndarray:
     """Per-vertex stiffness (n,) -> shear (m,): mean over each face's three vertices."""
     f = _faces(faces)
-    s = np.asarray(stiffness, dtype=np.float64)
+    s = as_float_array(stiffness, "stiffness")
     if s.ndim != 1 or s.shape[0] <= f.max():
         raise ValueError(f"stiffness: expected shape (n,) with n > {f.max()}, got {s.shape}")
     return _core.shear_from_vertex(f, as_stiffness(s, s.shape[0], "stiffness"))

@@ -11,11 +11,15 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_transforms
+from ._validate import as_float_array, as_transforms
 
 
 def _as_matrix(m, name: str) -> np.ndarray:
-    return as_transforms(np.asarray(m, dtype=np.float64)[None], 1, name)[0]
+    a = as_float_array(m, name)
+    if a.shape != (3, 3):
+        hint = " (pass M[:3, :3] for the linear part of a 4x4)" if a.shape == (4, 4) else ""
+        raise ValueError(f"{name}: expected shape (3,3), got {a.shape}{hint}")
+    return as_transforms(a[None], 1, name)[0]
 
 
 def transform_log(matrix) -> tuple[np.ndarray, np.ndarray]:
@@ -24,9 +28,13 @@ def transform_log(matrix) -> tuple[np.ndarray, np.ndarray]:
 
 
 def transform_exp(log_stretch, rotation) -> np.ndarray:
-    """Inverse of transform_log: expm(log_stretch) @ Rodrigues(rotation). Returns (3,3)."""
-    ls = np.asarray(log_stretch, dtype=np.float64)
-    r = np.asarray(rotation, dtype=np.float64)
+    """Inverse of transform_log: expm(log_stretch) @ Rodrigues(rotation). Returns (3,3).
+
+    The eigenvalues of the symmetric part of log_stretch must lie in [-709, 709] (exp of more
+    overflows a double).
+    """
+    ls = as_float_array(log_stretch, "log_stretch")
+    r = as_float_array(rotation, "rotation")
     if ls.shape != (3, 3) or not np.isfinite(ls).all():
         raise ValueError(f"log_stretch: expected a finite (3,3) array, got shape {ls.shape}")
     if r.shape != (3,) or not np.isfinite(r).all():
@@ -41,7 +49,7 @@ def polar_decompose(matrix) -> tuple[np.ndarray, np.ndarray]:
 
 def blend_transforms(transforms, weights) -> np.ndarray:
     """Blend k (3,3) transforms with per-row weights (m,k). Returns (m,3,3)."""
-    w = np.ascontiguousarray(weights, dtype=np.float64)
+    w = np.ascontiguousarray(as_float_array(weights, "weights"))
     if w.ndim != 2 or not np.isfinite(w).all():
         raise ValueError(f"weights: expected a finite (m,k) array, got shape {w.shape}")
     t = as_transforms(transforms, w.shape[1], "transforms")

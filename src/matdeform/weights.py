@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_anchors, as_int_array, as_stiffness
+from ._validate import as_anchors, as_stiffness, as_triangles
 
 
 def harmonic_weights(faces, anchors, bend=None) -> np.ndarray:
@@ -16,10 +16,11 @@ def harmonic_weights(faces, anchors, bend=None) -> np.ndarray:
     Returns W (m,k): rows sum to 1 and lie in [0,1] on faces an anchor reaches; faces in a
     component no anchor reaches get all-zero rows (they keep the identity transform).
     """
-    f = as_int_array(faces, "faces", 2)
-    if f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
     m = f.shape[0]
     pairs, _ = _core.dual_edges(f)
-    phi = np.ones(len(pairs)) if bend is None else as_stiffness(bend, len(pairs), "bend")
+    if bend is None:
+        phi = np.ones(len(pairs))
+    else:
+        phi = as_stiffness(bend, len(pairs), "bend", solved=True)
     return _core.harmonic_weights(m, pairs, phi, as_anchors(anchors, m))

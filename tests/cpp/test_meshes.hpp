@@ -1,6 +1,9 @@
 // Small procedural meshes for the C++ tests.
 #pragma once
 
+#include <algorithm>
+#include <cmath>
+
 #include "matdeform/types.hpp"
 
 namespace matdeform::meshes {
@@ -44,6 +47,17 @@ inline void make_grid(int nx, int ny, Vertices* V, Faces* F) {
       F->row(f++) << a, b, d;
       F->row(f++) << a, d, c;
     }
+}
+
+// Open fan of `count` triangles around a centre vertex 0 (rim vertices 1..count+1 on an arc of
+// min(1.5, 5.2 / count) rad per triangle), with the centre raised so the fan is not planar.
+inline void make_fan(int count, Vertices* V, Faces* F) {
+  V->resize(count + 2, 3);
+  V->row(0) << 0.0, 0.0, 0.3;
+  const double step = std::min(1.5, 5.2 / count);
+  for (int i = 0; i <= count; ++i) V->row(i + 1) << std::cos(step * i), std::sin(step * i), 0.0;
+  F->resize(count, 3);
+  for (int i = 0; i < count; ++i) F->row(i) << 0, i + 1, i + 2;
 }
 
 }  // namespace matdeform::meshes

@@ -2,6 +2,7 @@
 #pragma once
 
 #include <memory>
+#include <mutex>
 #include <optional>
 #include <vector>
 
@@ -34,10 +35,15 @@ struct DeformerOptions {
 //    and each component keeps its vertex mean at rest (factored on the first such call, then
 //    cached).
 //  - with a region, its boundary vertices are always fixed at rest in addition.
+//
+// Threads: deform() and face_transforms() may be called from several threads at once. Calls on
+// one deformer are serialised (they share its workspaces); calls on different deformers run
+// concurrently, each on the shared task pool when it is free and serially when it is not.
 class MaterialDeformer {
  public:
   // vertices (n,3); faces (m,3); anchors: k disjoint non-empty face lists; shear (m,) > 0;
-  // bend (E,1) isotropic or (E,3) per rotation axis, > 0, rows in dual_edges() order.
+  // bend (E,1) isotropic or (E,3) per rotation axis, > 0, rows in dual_edges() order; each
+  // field's max/min at most kMaxStiffnessRatio. Throws std::invalid_argument for bad input.
   MaterialDeformer(const Vertices& vertices, const Faces& faces, const AnchorList& anchors,
                    const Eigen::VectorXd& shear, const RowMatrix& bend,
                    const DeformerOptions& options = {});
@@ -84,6 +90,8 @@ class MaterialDeformer {
   // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the
   // per-pose path never stores all m transforms.
   mutable std::vector<TransformLog> last_logs_;
+  // Guards free_, last_logs_ and the repositioners' workspaces.
+  mutable std::mutex mutex_;
 };
 
 }  // namespace matdeform

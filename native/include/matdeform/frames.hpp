@@ -19,7 +19,8 @@ Eigen::Vector3d fourth_vertex(const Eigen::Vector3d& a, const Eigen::Vector3d& b
 
 // T_i = frame(deformed_i) * frame(rest_i)^-1 for every face (the affine part of the map that
 // takes the rest triangle and its fourth vertex onto the deformed ones). Both meshes share faces.
-// Throws std::invalid_argument for a degenerate (zero-area) rest face.
+// Throws std::invalid_argument for a degenerate (zero-area) rest face, a rest mesh that
+// validate_mesh refuses or non-finite deformed positions.
 Matrix3Array deformation_gradients(const Vertices& rest, const Vertices& deformed,
                                    const Faces& faces);
 

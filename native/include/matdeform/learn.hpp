@@ -70,6 +70,7 @@ RowMatrix stiffness_from_distortion(const RowMatrix& d, const StiffnessMap& map)
 // of itself and its dual-edge neighbours. Bending is moved to faces first (mean over the face's
 // dual edges, per column) and back to edges at the end (mean of the edge's two faces).
 // passes == 0 returns d unchanged. num_faces = m, pairs (E,2) as in learn_distortions.
+// Throws std::invalid_argument for non-finite distortions or pairs outside [0, num_faces).
 Distortions smooth_distortions(const Distortions& d, int num_faces, const IndexPairs& pairs,
                                int passes);
 

@@ -17,17 +17,50 @@ struct DualEdges {
   IndexPairs shared;
 };
 
+// Throws std::invalid_argument for a negative vertex index.
 DualEdges dual_edges(const Faces& faces);
 
+// Throws std::invalid_argument naming `name` unless every one of the `size` entries at `data`
+// lies in [0, upper). Every index that reaches the core from outside goes through this (or
+// validate_mesh) before it is used to address memory.
+void check_indices(const int* data, Eigen::Index size, Eigen::Index upper, const char* name);
+template <class IndexMatrix>
+void check_indices(const IndexMatrix& indices, Eigen::Index upper, const char* name) {
+  check_indices(indices.data(), indices.size(), upper, name);
+}
+
+// Mesh sizes the core accepts: the largest extent of the bounding box (over x, y, z) lies in
+// [kMinMeshSize, kMaxMeshSize]. Inside it the per-face products (squared cross products, up to
+// size^4 in the repositioning's elimination) stay within double range with room for the
+// stiffness ratio; outside it the user rescales the mesh (only shapes matter, not units).
+constexpr double kMinMeshSize = 1e-50;
+constexpr double kMaxMeshSize = 1e50;
+
 // Throws std::invalid_argument when faces reference vertices outside [0, num_vertices) or a
-// face repeats a vertex, and when any vertex coordinate is not finite.
+// face repeats a vertex, when any vertex coordinate is not finite, and when the mesh size is
+// outside [kMinMeshSize, kMaxMeshSize].
 void validate_mesh(const Vertices& vertices, const Faces& faces);
 
+// Union-find over [0, n) (path halving). Every set's root is its smallest element, so the
+// result does not depend on the order in which elements are linked. The one union-find of the
+// core: components of faces (face_components) and of vertices (the solvers) both use it.
+class DisjointSets {
+ public:
+  explicit DisjointSets(int n);
+  int find(int x);
+  // Merges the sets of a and b; returns false when they were already one set.
+  bool unite(int a, int b);
+
+ private:
+  std::vector<int> parent_;
+};
+
 // Connected components of the face graph (faces linked by dual edges). Returns one label per
-// face in [0, count) and sets count.
+// face in [0, count) and sets count. Throws std::invalid_argument for pairs outside
+// [0, num_faces).
 std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* count);
 
-// Twice the area of each face, length m.
+// Twice the area of each face, length m. Throws std::invalid_argument for out-of-range faces.
 Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces);
 
 }  // namespace matdeform

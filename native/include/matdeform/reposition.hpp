@@ -22,9 +22,11 @@ namespace matdeform {
 //  - a connected component with no fixed vertex is solved up to translation and then shifted so
 //    that the mean of its vertices equals their rest mean.
 // Factors once in the constructor; solve() only assembles the right-hand side and substitutes.
+// solve() may be called from several threads: calls are serialised (one workspace).
 class PoissonRepositioner {
  public:
-  // vertices (n,3), faces (m,3), shear (m,) > 0, fixed: vertex indices (any order, unique).
+  // vertices (n,3), faces (m,3) (validate_mesh), shear (m,) > 0 with max/min at most
+  // kMaxStiffnessRatio, fixed: vertex indices (any order, unique).
   PoissonRepositioner(const Vertices& vertices, const Faces& faces, const Eigen::VectorXd& shear,
                       const std::vector<int>& fixed);
   ~PoissonRepositioner();

@@ -16,6 +16,11 @@
 
 namespace matdeform {
 
+// Largest |eigenvalue| of a log-stretch: e^709 = 8e307 is the last power of e below the largest
+// double. transform_log refuses stretches beyond it, transform_exp logs beyond it; blends of
+// valid logs with convex weights stay inside.
+constexpr double kMaxLogStretch = 709.0;
+
 struct TransformLog {
   Eigen::Matrix3d log_stretch = Eigen::Matrix3d::Zero();  // symmetric
   Eigen::Vector3d rotation = Eigen::Vector3d::Zero();     // axis * angle, angle in [0, pi]
@@ -28,20 +33,26 @@ Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R);
 Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega);
 
 // M = S * R with S symmetric positive definite, R proper rotation. Throws
-// std::invalid_argument unless det M > 0 and M is finite.
+// std::invalid_argument unless det M > 0 and M is finite (and S stays finite).
 void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix3d* R);
 
 // Log of a symmetric positive definite matrix and exp of a symmetric one (eigen-decomposition).
+// Both throw std::invalid_argument when an eigenvalue of the log is beyond +-kMaxLogStretch.
 Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S);
 Eigen::Matrix3d sym_exp(const Eigen::Matrix3d& L);
 
+// Throws std::invalid_argument as polar_decompose and spd_log do.
 TransformLog transform_log(const Eigen::Matrix3d& M);
+// Throws std::invalid_argument when the log-stretch is beyond +-kMaxLogStretch (the result
+// would overflow).
 Eigen::Matrix3d transform_exp(const TransformLog& L);
 
 // Blend of anchor logs with weights (k,), the exp of the weighted log sum.
 Eigen::Matrix3d blend_logs(const std::vector<TransformLog>& logs, const double* weights);
 
-// Blends for all faces: weights is (m,k), output m matrices. Parallel over faces.
+// Blends for all faces: weights is (m,k), output m matrices. Parallel over faces. Throws
+// std::invalid_argument for non-finite weights and for rows whose blended log-stretch could
+// exceed kMaxLogStretch (sum_a |w_a| |log S_a|_F above it).
 void blend_all(const std::vector<TransformLog>& logs, const RowMatrix& weights, Matrix3Array* out);
 // Serial kernel of blend_all for faces [begin, end), written to out[0 .. end - begin).
 void blend_range(const std::vector<TransformLog>& logs, const RowMatrix& weights, int begin,
@@ -56,7 +67,8 @@ void blend_groups(const std::vector<TransformLog>& logs, const RowMatrix& weight
 // Anisotropic blend (paper Sec. 5). Each anchor rotation log is split into its components along
 // the columns of `axes` (c_x = <log Q, log R_x> up to the basis normalisation); component x is
 // blended with weights wx, and so on. The stretch part uses the mean of the three weights.
-// All weight matrices are (m,k). With wx = wy = wz this equals blend_all.
+// All weight matrices are (m,k). With wx = wy = wz this equals blend_all, and it throws as
+// blend_all does (for the mean weights).
 void blend_all_anisotropic(const std::vector<TransformLog>& logs, const RowMatrix& wx,
                            const RowMatrix& wy, const RowMatrix& wz, const Eigen::Matrix3d& axes,
                            Matrix3Array* out);

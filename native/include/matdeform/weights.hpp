@@ -7,7 +7,8 @@ namespace matdeform {
 
 // Minimises sum_e phi_e |w_f - w_g|^2 over dual edges e = (f, g), with the faces of anchor a
 // fixed to the unit vector e_a. Returns W (m,k).
-//  - pairs: (E,2) dual edges, phi: (E,) bending stiffness > 0.
+//  - pairs: (E,2) dual edges in [0, num_faces), phi: (E,) bending stiffness > 0, max/min at
+//    most kMaxStiffnessRatio (stiffness.hpp).
 //  - anchors: k non-empty, pairwise disjoint lists of face indices.
 // Faces whose face-graph component holds no anchor get an all-zero row (identity transform);
 // every other row is a convex combination: entries in [0,1] summing to 1 (maximum principle).
