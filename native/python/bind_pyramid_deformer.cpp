@@ -54,8 +54,7 @@ void bind_pyramid_deformer(py::module_& m) {
           "deform",
           [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
              std::optional<Vertices> initial, bool stretch, bool push, const std::string& method,
-             bool record_moves, int anderson, bool multilevel, int level_sweeps,
-             int coarse_iterations, double damping, double scale, bool average) {
+             bool record_moves, int anderson) {
             PyramidSolveOptions o;
             o.max_iterations = iterations;
             o.tol = tol;
@@ -65,20 +64,12 @@ void bind_pyramid_deformer(py::module_& m) {
             o.initial = initial ? &*initial : nullptr;
             o.record_moves = record_moves;
             o.anderson = anderson;
-            o.multilevel = multilevel;
-            o.level_sweeps = level_sweeps;
-            o.coarse_iterations = coarse_iterations;
-            o.coarse_damping = damping;
-            o.coarse_scale = scale;
-            o.restrict_average = average;
             py::gil_scoped_release release;
             return self.deform(control_positions, o);
           },
           py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
           py::arg("stretch"), py::arg("push"), py::arg("method"), py::arg("record_moves"),
-          py::arg("anderson"), py::arg("multilevel"), py::arg("level_sweeps") = 2,
-          py::arg("coarse_iterations") = 200, py::arg("damping") = 1.0, py::arg("scale") = 1.0,
-          py::arg("average") = false)
+          py::arg("anderson"))
       .def(
           "reconstruct",
           [](const PyramidDeformer& self, const Vertices& X, bool stretch) {
@@ -93,6 +84,5 @@ void bind_pyramid_deformer(py::module_& m) {
       .def_property_readonly("last_moves", &PyramidDeformer::last_moves)
       .def_property_readonly("num_colors", &PyramidDeformer::num_colors)
       .def_property_readonly("num_passive", &PyramidDeformer::num_passive)
-      .def_property_readonly("diagonal", &PyramidDeformer::diagonal)
-      .def_property_readonly("level_sizes", &PyramidDeformer::level_sizes);
+      .def_property_readonly("diagonal", &PyramidDeformer::diagonal);
 }

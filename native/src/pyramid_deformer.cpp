@@ -193,8 +193,8 @@ double max_move(const Vertices& A, const Vertices& B, const std::vector<int>& ve
 
 }  // namespace
 
-// One resolution of the mesh with everything a sweep needs.
-struct PyramidLevel {
+// Everything a sweep needs: the description plus the colouring and step 2's adjacency.
+struct PyramidSolver {
   Vertices rest;
   PyramidCoordinates coords;
   std::vector<double> cot_beta;          // per slot
@@ -205,12 +205,8 @@ struct PyramidLevel {
   std::vector<int> pushed, pushed_offsets, pushed_by;  // CSR: free vertex <- pushers rows
   std::vector<int> push_row;                           // vertex -> row in pushed, or -1
   int num_passive = 0;
-  // Towards the next coarser level: coarse[v] is v's index there, or -1 when v was removed;
-  // removed vertices are never neighbours of each other, so each is placed from kept ones.
-  std::vector<int> coarse;
-  std::vector<int> removed;
 
-  PyramidLevel(const Vertices& vertices, const Faces& faces, const std::vector<char>& is_control);
+  PyramidSolver(const Vertices& vertices, const Faces& faces, const std::vector<char>& is_control);
   Vec3 follow(int v, const double* X) const;
   Vec3 place(int v, const double* X, bool stretch) const;
   // Step 2 from positions x: per pusher its shift, per pushed vertex the mean of its pushers'.
@@ -229,8 +225,8 @@ struct PyramidLevel {
               double limit, double* move, std::vector<double>* moves, double diag) const;
 };
 
-PyramidLevel::PyramidLevel(const Vertices& vertices, const Faces& faces,
-                           const std::vector<char>& is_control)
+PyramidSolver::PyramidSolver(const Vertices& vertices, const Faces& faces,
+                             const std::vector<char>& is_control)
     : rest(vertices) {
   coords = pyramid_coordinates(vertices, faces);
   const int n = static_cast<int>(vertices.rows());
@@ -320,7 +316,7 @@ PyramidLevel::PyramidLevel(const Vertices& vertices, const Faces& faces,
   }
 }
 
-Vec3 PyramidLevel::follow(int v, const double* X) const {
+Vec3 PyramidSolver::follow(int v, const double* X) const {
   // Best-fit similarity (Kabsch with scale) of v and its neighbours, rest -> current.
   const int o = coords.offsets[static_cast<size_t>(v)];
   const int m = coords.offsets[static_cast<size_t>(v) + 1] - o;
@@ -353,66 +349,75 @@ Vec3 PyramidLevel::follow(int v, const double* X) const {
   return c + (sig.sum() / s0) * (R * (row(R0, v) - c0));
 }
 
-Vec3 PyramidLevel::place(int v, const double* X, bool stretch) const {
+Vec3 PyramidSolver::place(int v, const double* X, bool stretch) const {
   const signed char kind = coords.kind[static_cast<size_t>(v)];
   if (kind == kPyramidIsolated) return row(X, v);
   if (kind == kPyramidFollower) return follow(v, X);
   const int o = coords.offsets[static_cast<size_t>(v)];
   const int m = coords.offsets[static_cast<size_t>(v) + 1] - o;
   const int* ring = coords.neighbors.data() + o;
-  const Vec3 c = centroid(X, ring, m);
-  const Vec3 N = newell(X, ring, m, c);
-  const double nn = N.norm();
+  // The neighbours relative to their mean c, gathered once.
+  constexpr int kStack = 24;
+  Vec3 stack[kStack];
+  std::vector<Vec3> heap;
+  Vec3* d = stack;
+  if (m > kStack) {
+    heap.resize(static_cast<size_t>(m));
+    d = heap.data();
+  }
+  Vec3 c = Vec3::Zero();
+  for (int i = 0; i < m; ++i) {
+    d[i] = row(X, ring[i]);
+    c += d[i];
+  }
+  c /= m;
   double spread2 = 0;
-  for (int i = 0; i < m; ++i) spread2 += (row(X, ring[i]) - c).squaredNorm();
+  for (int i = 0; i < m; ++i) {
+    d[i] -= c;
+    spread2 += d[i].squaredNorm();
+  }
+  Vec3 N = d[m - 1].cross(d[0]);
+  for (int i = 1; i < m; ++i) N += d[i - 1].cross(d[i]);
+  const double nn = N.norm();
   // The current neighbours have collapsed onto a line or a point: no plane, follow instead.
   if (!(nn > kAreaEps * spread2)) return follow(v, X);
   const Vec3 n = N / nn;
-  // Eq. 1: v' = sum w_i v'_i, relative to c on the plane P through c.
-  const double* w = coords.weight.data() + o;
+  for (int i = 0; i < m; ++i) d[i] -= n.dot(d[i]) * n;  // v'_i - c on the plane P through c
+  // Eq. 1: v' = sum w_i v'_i.
   Vec3 vp = Vec3::Zero();
-  double wsum = 1.0;
+  bool done = false;
   if (stretch) {
     // w_i |v' - v'_i| / l_i with v' the projection of the current v.
     Vec3 p = row(X, v) - c;
     p -= n.dot(p) * n;
     const double* wl = weight_per_len.data() + o;
-    wsum = 0;
+    double wsum = 0;
     for (int i = 0; i < m; ++i) {
-      Vec3 q = row(X, ring[i]) - c;
-      q -= n.dot(q) * n;
-      const double wi = wl[i] * (p - q).norm();
-      vp += wi * q;
+      const double wi = wl[i] * (p - d[i]).norm();
+      vp += wi * d[i];
       wsum += wi;
     }
-    if (!(wsum > 1e-300) || !vp.allFinite()) {  // v' on every v'_i at once: no stretch
-      vp.setZero();
-      wsum = 1.0;
-      stretch = false;
+    // Unless v' sits on every v'_i at once (then there is nothing to scale by).
+    if (wsum > 1e-300 && vp.allFinite()) {
+      vp /= wsum;
+      done = true;
     }
   }
-  if (!stretch) {
-    for (int i = 0; i < m; ++i) {
-      Vec3 q = row(X, ring[i]) - c;
-      q -= n.dot(q) * n;
-      vp += w[i] * q;
-    }
+  if (!done) {
+    const double* w = coords.weight.data() + o;
+    vp.setZero();
+    for (int i = 0; i < m; ++i) vp += w[i] * d[i];
   }
-  vp /= wsum;
   // Eq. 2: v = v' + n mean(h_i), h_i = |v' - v'_i| cot(beta_i) + (v_i - v'_i).n; the second
   // terms are the neighbours' heights above P, which average to zero about their mean c.
   const double* cb = cot_beta.data() + o;
   double h = 0;
-  for (int i = 0; i < m; ++i) {
-    Vec3 q = row(X, ring[i]) - c;
-    q -= n.dot(q) * n;
-    h += (vp - q).norm() * cb[i];
-  }
+  for (int i = 0; i < m; ++i) h += (vp - d[i]).norm() * cb[i];
   return c + vp + (h / m) * n;
 }
 
-void PyramidLevel::shifts(const double* x, std::vector<Vec3>* shift,
-                          std::vector<Vec3>* pushes) const {
+void PyramidSolver::shifts(const double* x, std::vector<Vec3>* shift,
+                           std::vector<Vec3>* pushes) const {
   // Per control: the shift of its neighbours along n that would put the control at the mean
   // height mean(h_i) its description predicts above their plane (paper step 2).
   const auto& off = coords.offsets;
@@ -452,9 +457,9 @@ void PyramidLevel::shifts(const double* x, std::vector<Vec3>* shift,
   }
 }
 
-void PyramidLevel::apply(const std::vector<int>& verts, const double* from, double* to,
-                         const Vertices* tau, const PyramidSolveOptions& o,
-                         const std::vector<Vec3>& pushes) const {
+void PyramidSolver::apply(const std::vector<int>& verts, const double* from, double* to,
+                          const Vertices* tau, const PyramidSolveOptions& o,
+                          const std::vector<Vec3>& pushes) const {
   parallel_ranges(static_cast<int>(verts.size()), kMinChunk, chunks(), [&](int b, int e) {
     for (int r = b; r < e; ++r) {
       const int v = verts[static_cast<size_t>(r)];
@@ -468,7 +473,7 @@ void PyramidLevel::apply(const std::vector<int>& verts, const double* from, doub
   });
 }
 
-void PyramidLevel::sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const {
+void PyramidSolver::sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const {
   // Step 2 folded into step 1: each free vertex is placed from its description plus the shift
   // its controls ask for, both from the sweep's start. The fixed point is then the same for
   // Jacobi and for Gauss-Seidel in any colour order.
@@ -482,23 +487,23 @@ void PyramidLevel::sweep(Vertices* X, const Vertices* tau, const PyramidSolveOpt
   }
 }
 
-void PyramidLevel::jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
-                          const PyramidSolveOptions& o, Vertices* Y) const {
+void PyramidSolver::jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
+                           const PyramidSolveOptions& o, Vertices* Y) const {
   std::vector<Vec3> shift, pushes;
   if (o.push) shifts(X.data(), &shift, &pushes);
   apply(verts, X.data(), Y->data(), tau, o, pushes);
 }
 
-int PyramidLevel::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o,
-                          int max_iterations, double limit, double* move,
-                          std::vector<double>* moves, double diag) const {
+int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o,
+                           int max_iterations, double limit, double* move,
+                           std::vector<double>* moves, double diag) const {
   const int nf = static_cast<int>(free.size());
   *move = 0;
   if (nf == 0) return 0;
   // Anderson acceleration (Walker & Ni 2011) of the sweep map G over the free coordinates:
   // x+ = G(x) - dG gamma with gamma = argmin |f - dF gamma|, f = G(x) - x, over the last
-  // `window` differences. Plain loops, not Eigen products, which would start OpenMP threads
-  // beside the task pool.
+  // `window` differences. Only dot products and matrix-vector products: Eigen runs
+  // matrix-matrix products on OpenMP threads, which would fight the task pool's workers.
   const int window = std::max(0, o.anderson);
   const Eigen::Index len = 3 * static_cast<Eigen::Index>(nf);
   Eigen::VectorXd x, g, f, f_prev, g_prev;
@@ -508,13 +513,6 @@ int PyramidLevel::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOp
     dF.resize(len, window), dG.resize(len, window);
     gram = Eigen::MatrixXd::Zero(window, window);
   }
-  auto dot = [len](const double* a, const double* b) {
-    double s0 = 0, s1 = 0;
-    Eigen::Index i = 0;
-    for (; i + 1 < len; i += 2) s0 += a[i] * b[i], s1 += a[i + 1] * b[i + 1];
-    if (i < len) s0 += a[i] * b[i];
-    return s0 + s1;
-  };
   int stored = 0, head = 0, it = 0;
   Vertices Y;
   while (it < max_iterations) {
@@ -533,26 +531,19 @@ int PyramidLevel::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOp
         dF.col(head) = f - f_prev;
         dG.col(head) = g - g_prev;
         stored = std::min(stored + 1, window);
-        for (int j = 0; j < stored; ++j) {
-          gram(head, j) = gram(j, head) = dot(dF.col(head).data(), dF.col(j).data());
-        }
+        for (int j = 0; j < stored; ++j)
+          gram(head, j) = gram(j, head) = dF.col(head).dot(dF.col(j));
         head = (head + 1) % window;
       }
       f_prev = f;
       g_prev = g;
       if (stored > 0) {
         Eigen::MatrixXd A = gram.topLeftCorner(stored, stored);
-        Eigen::VectorXd rhs(stored);
-        for (int j = 0; j < stored; ++j) rhs(j) = dot(dF.col(j).data(), f.data());
+        const Eigen::VectorXd rhs = dF.leftCols(stored).transpose() * f;
         A.diagonal().array() += 1e-10 * A.diagonal().maxCoeff() + 1e-300;
         const Eigen::VectorXd gamma = A.ldlt().solve(rhs);
         if (gamma.allFinite()) {
-          double* gp = g.data();
-          for (int j = 0; j < stored; ++j) {
-            const double c = gamma(j);
-            const double* col = dG.col(j).data();
-            for (Eigen::Index i = 0; i < len; ++i) gp[i] -= c * col[i];
-          }
+          g.noalias() -= dG.leftCols(stored) * gamma;
           for (int r = 0; r < nf; ++r) {
             Y.row(free[static_cast<size_t>(r)]) = g.segment<3>(3 * r).transpose();
           }
@@ -570,119 +561,51 @@ int PyramidLevel::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOp
 
 namespace {
 
-// Removes an independent set of vertices by half-edge collapses (no two removed vertices are
-// neighbours, so each keeps its whole one-ring): interior manifold non-control vertices of
-// valence 3-10, flattest first, each onto the neighbour whose collapse keeps every face's
-// orientation. Returns the faces of the coarser mesh in the old indices; removed[v] marks v.
-Faces coarsen(const Vertices& V, const Faces& F, const PyramidCoordinates& pc,
-              const std::vector<char>& is_control, std::vector<char>* removed) {
-  const int n = static_cast<int>(V.rows());
-  const int m = static_cast<int>(F.rows());
-  std::vector<std::array<int, 3>> faces(static_cast<size_t>(m));
-  std::vector<std::vector<int>> vf(static_cast<size_t>(n));
-  for (int f = 0; f < m; ++f) {
-    for (int k = 0; k < 3; ++k) {
-      faces[static_cast<size_t>(f)][k] = F(f, k);
-      vf[static_cast<size_t>(F(f, k))].push_back(f);
-    }
+// The rest mesh moved by the similarity (rotation, uniform scale, translation) that best maps
+// the controls' rest positions onto their targets (Umeyama 1991). The sweeps converge slowly from
+// the rest pose, and for a rigid motion of all controls this start is the answer.
+Vertices similarity_start(const Vertices& rest, const std::vector<int>& control,
+                          const Vertices& target) {
+  const Eigen::Index k = target.rows();
+  Vec3 c0 = Vec3::Zero(), c1 = Vec3::Zero();
+  for (Eigen::Index j = 0; j < k; ++j) {
+    c0 += rest.row(control[static_cast<size_t>(j)]).transpose();
+    c1 += target.row(j).transpose();
   }
-  std::vector<char> alive(static_cast<size_t>(m), 1), blocked(static_cast<size_t>(n), 0);
-  removed->assign(static_cast<size_t>(n), 0);
-  std::vector<std::pair<double, int>> order;
-  for (int v = 0; v < n; ++v) {
-    const int val = pc.offsets[static_cast<size_t>(v) + 1] - pc.offsets[static_cast<size_t>(v)];
-    if (is_control[static_cast<size_t>(v)] || pc.kind[static_cast<size_t>(v)] != kPyramidInterior ||
-        val < 3 || val > 10)
-      continue;
-    double spread = 0;
-    for (int s = pc.offsets[v]; s < pc.offsets[v + 1]; ++s) spread += pc.length[s];
-    order.emplace_back(std::abs(pc.height(v)) * val / spread, v);
+  c0 /= static_cast<double>(k);
+  c1 /= static_cast<double>(k);
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  double s0 = 0;
+  for (Eigen::Index j = 0; j < k; ++j) {
+    const Vec3 a = rest.row(control[static_cast<size_t>(j)]).transpose() - c0;
+    H += (target.row(j).transpose() - c1) * a.transpose();
+    s0 += a.squaredNorm();
   }
-  std::sort(order.begin(), order.end());
-  auto normal = [&](const std::array<int, 3>& t) {
-    const Vec3 a = V.row(t[0]), b = V.row(t[1]), c = V.row(t[2]);
-    return Vec3((b - a).cross(c - a));
-  };
-  std::vector<int> nu, nv;
-  for (const auto& [cost, v] : order) {
-    if (blocked[static_cast<size_t>(v)]) continue;
-    const int o = pc.offsets[static_cast<size_t>(v)];
-    const int val = pc.offsets[static_cast<size_t>(v) + 1] - o;
-    nv.assign(pc.neighbors.begin() + o, pc.neighbors.begin() + o + val);
-    std::sort(nv.begin(), nv.end());
-    // Targets nearest first.
-    std::vector<std::pair<double, int>> targets;
-    for (int u : nv) targets.emplace_back((V.row(u) - V.row(v)).squaredNorm(), u);
-    std::sort(targets.begin(), targets.end());
-    for (const auto& [d2, u] : targets) {
-      // Link condition: u and v share exactly the two vertices opposite their edge.
-      nu.clear();
-      for (int f : vf[static_cast<size_t>(u)])
-        for (int k = 0; k < 3; ++k) nu.push_back(faces[static_cast<size_t>(f)][k]);
-      std::sort(nu.begin(), nu.end());
-      nu.erase(std::unique(nu.begin(), nu.end()), nu.end());
-      int common = 0;
-      for (int w : nv) common += w != u && std::binary_search(nu.begin(), nu.end(), w) ? 1 : 0;
-      if (common != 2) continue;
-      // Every face of v that survives keeps its orientation and a fair shape.
-      bool ok = true;
-      for (int f : vf[static_cast<size_t>(v)]) {
-        auto t = faces[static_cast<size_t>(f)];
-        if (t[0] == u || t[1] == u || t[2] == u) continue;
-        const Vec3 before = normal(t);
-        for (int& x : t)
-          if (x == v) x = u;
-        const Vec3 after = normal(t);
-        if (!(after.dot(before) > 0.5 * after.norm() * before.norm())) ok = false;
-      }
-      if (!ok) continue;
-      for (int f : vf[static_cast<size_t>(v)]) {
-        auto& t = faces[static_cast<size_t>(f)];
-        if (t[0] == u || t[1] == u || t[2] == u) {
-          alive[static_cast<size_t>(f)] = 0;
-          for (int x : t) {
-            auto& l = vf[static_cast<size_t>(x)];
-            if (x != v) l.erase(std::remove(l.begin(), l.end(), f), l.end());
-          }
-          continue;
-        }
-        for (int& x : t)
-          if (x == v) x = u;
-        vf[static_cast<size_t>(u)].push_back(f);
-      }
-      vf[static_cast<size_t>(v)].clear();
-      (*removed)[static_cast<size_t>(v)] = 1;
-      for (int w : nv) blocked[static_cast<size_t>(w)] = 1;
-      break;
-    }
+  Eigen::Matrix3d A = Eigen::Matrix3d::Identity();
+  if (s0 > 0 && H.allFinite() && H.norm() > 0) {
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d sig = svd.singularValues();
+    if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) D(2, 2) = -1, sig(2) *= -1;
+    // One or two controls (or collinear ones) leave the rotation about their line free: the fit
+    // then picks the smallest rotation, which is what the SVD's ordering gives.
+    A = (sig.sum() / s0) * (svd.matrixU() * D * svd.matrixV().transpose());
   }
-  int alive_count = 0;
-  for (char a : alive) alive_count += a;
-  Faces out(alive_count, 3);
-  int r = 0;
-  for (int f = 0; f < m; ++f) {
-    if (!alive[static_cast<size_t>(f)]) continue;
-    for (int k = 0; k < 3; ++k) out(r, k) = faces[static_cast<size_t>(f)][k];
-    ++r;
+  Vertices X(rest.rows(), 3);
+  for (Eigen::Index v = 0; v < rest.rows(); ++v) {
+    X.row(v) = (A * (rest.row(v).transpose() - c0) + c1).transpose();
   }
-  return out;
+  return X;
 }
-
-// The coarsest level keeps at least this many vertices; levels that remove less than 5 % of
-// their vertices end the hierarchy.
-constexpr int kCoarsest = 200;
-constexpr int kMaxLevels = 16;
 
 }  // namespace
 
-struct PyramidDeformer::Impl {
-  std::vector<PyramidLevel> levels;
-  std::vector<std::vector<int>> control;  // per level: control vertex ids in that level
+struct PyramidDeformer::Impl : PyramidSolver {
+  using PyramidSolver::PyramidSolver;
 };
 
 PyramidDeformer::PyramidDeformer(const Vertices& vertices, const Faces& faces,
-                                 const std::vector<int>& control)
-    : impl_(std::make_unique<Impl>()) {
+                                 const std::vector<int>& control) {
   validate_mesh(vertices, faces);
   const int n = static_cast<int>(vertices.rows());
   if (control.empty()) throw std::invalid_argument("control: expected at least one vertex");
@@ -699,56 +622,17 @@ PyramidDeformer::PyramidDeformer(const Vertices& vertices, const Faces& faces,
   }
   control_ = control;
   diag_ = (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()).norm();
-  impl_->levels.emplace_back(vertices, faces, is_control);
-  impl_->control.push_back(control);
-  Faces F = faces;
-  while (static_cast<int>(impl_->levels.size()) < kMaxLevels) {
-    PyramidLevel& fine = impl_->levels.back();
-    const int nl = static_cast<int>(fine.rest.rows());
-    if (nl <= kCoarsest) break;
-    std::vector<char> removed;
-    const Faces coarse_faces = coarsen(fine.rest, F, fine.coords, is_control, &removed);
-    int kept = 0;
-    for (char r : removed) kept += r ? 0 : 1;
-    if (kept > 0.95 * nl || kept < 3) break;
-    fine.coarse.assign(static_cast<size_t>(nl), -1);
-    Vertices V(kept, 3);
-    std::vector<char> ctrl(static_cast<size_t>(kept), 0);
-    for (int v = 0, k = 0; v < nl; ++v) {
-      if (removed[static_cast<size_t>(v)]) {
-        fine.removed.push_back(v);
-        continue;
-      }
-      fine.coarse[static_cast<size_t>(v)] = k;
-      V.row(k) = fine.rest.row(v);
-      ctrl[static_cast<size_t>(k)] = is_control[static_cast<size_t>(v)];
-      ++k;
-    }
-    F = coarse_faces;
-    for (Eigen::Index f = 0; f < F.rows(); ++f)
-      for (int k = 0; k < 3; ++k) F(f, k) = fine.coarse[static_cast<size_t>(F(f, k))];
-    std::vector<int> cc;
-    for (int c : impl_->control.back()) cc.push_back(fine.coarse[static_cast<size_t>(c)]);
-    is_control = std::move(ctrl);
-    impl_->control.push_back(std::move(cc));
-    impl_->levels.emplace_back(V, F, is_control);
-  }
+  impl_ = std::make_unique<Impl>(vertices, faces, is_control);
 }
 
 PyramidDeformer::~PyramidDeformer() = default;
 
-const PyramidCoordinates& PyramidDeformer::coordinates() const { return impl_->levels[0].coords; }
-int PyramidDeformer::num_vertices() const { return static_cast<int>(impl_->levels[0].rest.rows()); }
-int PyramidDeformer::num_colors() const { return static_cast<int>(impl_->levels[0].colors.size()); }
-int PyramidDeformer::num_passive() const { return impl_->levels[0].num_passive; }
-std::vector<int> PyramidDeformer::level_sizes() const {
-  std::vector<int> out;
-  for (const auto& l : impl_->levels) out.push_back(static_cast<int>(l.rest.rows()));
-  return out;
-}
-
+const PyramidCoordinates& PyramidDeformer::coordinates() const { return (*impl_).coords; }
+int PyramidDeformer::num_vertices() const { return static_cast<int>((*impl_).rest.rows()); }
+int PyramidDeformer::num_colors() const { return static_cast<int>((*impl_).colors.size()); }
+int PyramidDeformer::num_passive() const { return (*impl_).num_passive; }
 Vertices PyramidDeformer::reconstruct(const Vertices& X, bool stretch) const {
-  const PyramidLevel& l0 = impl_->levels[0];
+  const PyramidSolver& l0 = *impl_;
   if (X.rows() != l0.rest.rows()) {
     throw std::invalid_argument("positions: expected shape (" + std::to_string(l0.rest.rows()) +
                                 ",3)");
@@ -765,7 +649,7 @@ Vertices PyramidDeformer::reconstruct(const Vertices& X, bool stretch) const {
 Vertices PyramidDeformer::deform(const Vertices& control_positions,
                                  const PyramidSolveOptions& options) {
   const ParkWorkersOnExit park;
-  const auto& levels = impl_->levels;
+  const PyramidSolver& level = *impl_;
   const int n = num_vertices();
   const int k = static_cast<int>(control_.size());
   if (control_positions.rows() != k) {
@@ -780,7 +664,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     throw std::invalid_argument("tol: expected a finite value >= 0");
   }
   if (options.anderson < 0) throw std::invalid_argument("anderson: expected >= 0");
-  Vertices X = levels[0].rest;
+  Vertices X = level.rest;
   if (options.initial) {
     if (options.initial->rows() != n) {
       throw std::invalid_argument("initial: expected shape (" + std::to_string(n) + ",3)");
@@ -789,6 +673,8 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       throw std::invalid_argument("initial: contains NaN or infinity");
     }
     X = *options.initial;
+  } else {
+    X = similarity_start(level.rest, control_, control_positions);
   }
   for (int j = 0; j < k; ++j) X.row(control_[static_cast<size_t>(j)]) = control_positions.row(j);
   const double limit = options.tol * diag_;
@@ -798,81 +684,10 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   if (options.max_iterations == 0) return X;
 
   double move = 0;
-  if (options.multilevel && levels.size() > 1) {
-    // Nonlinear multigrid (FAS V-cycles); one iteration is one cycle.
-    const std::vector<int>& free0 = levels[0].free;
-    Vertices old;
-    for (int it = 0; it < options.max_iterations; ++it) {
-      old = X;
-      cycle(0, &X, nullptr, options, limit);
-      move = max_move(X, old, free0);
-      ++last_iterations_;
-      if (!std::isfinite(move)) throw std::runtime_error("pyramid deformer: the cycle diverged");
-      if (options.record_moves) last_moves_.push_back(diag_ > 0 ? move / diag_ : move);
-      if (move < limit) break;
-    }
-  } else {
-    last_iterations_ = levels[0].iterate(&X, nullptr, options, options.max_iterations, limit, &move,
-                                         options.record_moves ? &last_moves_ : nullptr, diag_);
-  }
-  last_move_ = levels[0].free.empty() ? 0.0 : (diag_ > 0 ? move / diag_ : move);
+  last_iterations_ = level.iterate(&X, nullptr, options, options.max_iterations, limit, &move,
+                                   options.record_moves ? &last_moves_ : nullptr, diag_);
+  last_move_ = level.free.empty() ? 0.0 : (diag_ > 0 ? move / diag_ : move);
   return X;
-}
-
-void PyramidDeformer::cycle(size_t l, Vertices* X, const Vertices* tau,
-                            const PyramidSolveOptions& o, double limit) const {
-  const auto& levels = impl_->levels;
-  const PyramidLevel& L = levels[l];
-  double move = 0;
-  if (l + 1 == levels.size()) {
-    L.iterate(X, tau, o, o.coarse_iterations, 0.1 * limit, &move, nullptr, diag_);
-    return;
-  }
-  for (int s = 0; s < o.level_sweeps; ++s) L.sweep(X, tau, o);
-  // Restrict by injection; the coarse problem x = P_c(x) + tau_c gets
-  // tau_c = R (P(x) + tau) - P_c(R x), so that R x solves it once x solves the fine one.
-  const PyramidLevel& C = levels[l + 1];
-  const auto& map = L.coarse;
-  Vertices Q = *X;
-  L.jacobi(L.free, *X, tau, o, &Q);
-  Vertices Xc(C.rest.rows(), 3);
-  for (size_t v = 0; v < map.size(); ++v)
-    if (map[v] >= 0) Xc.row(map[v]) = X->row(static_cast<Eigen::Index>(v));
-  Vertices Qc = Xc;
-  C.jacobi(C.free, Xc, nullptr, o, &Qc);
-  Vertices tc = Vertices::Zero(C.rest.rows(), 3);
-  // Residual r = P(x) + tau - x; restricted by averaging each kept vertex's own residual with
-  // those of its removed neighbours (each shared among its kept neighbours).
-  Vertices r = Q - *X;
-  Vertices rc = Vertices::Zero(C.rest.rows(), 3);
-  Eigen::VectorXd wc = Eigen::VectorXd::Zero(C.rest.rows());
-  for (size_t v = 0; v < map.size(); ++v)
-    if (map[v] >= 0) rc.row(map[v]) += r.row(static_cast<Eigen::Index>(v)), wc(map[v]) += 1;
-  if (o.restrict_average) {
-    const auto& off = L.coords.offsets;
-    for (int v : L.removed) {
-      const int m = off[v + 1] - off[v];
-      for (int s = off[v]; s < off[v + 1]; ++s) {
-        const int w = map[static_cast<size_t>(L.coords.neighbors[s])];
-        rc.row(w) += r.row(v) / m;
-        wc(w) += 1.0 / m;
-      }
-    }
-  }
-  for (size_t v = 0; v < map.size(); ++v) {
-    const int w = map[v];
-    if (w >= 0) tc.row(w) = Xc.row(w) - Qc.row(w) + o.coarse_scale * rc.row(w) / wc(w);
-  }
-  const Vertices Xc0 = Xc;
-  cycle(l + 1, &Xc, &tc, o, limit);
-  // Prolongate: kept vertices take the coarse correction, removed ones (whose neighbours are
-  // all kept) are placed from their descriptions.
-  for (size_t v = 0; v < map.size(); ++v) {
-    const int w = map[v];
-    if (w >= 0) X->row(static_cast<Eigen::Index>(v)) += o.coarse_damping * (Xc.row(w) - Xc0.row(w));
-  }
-  L.jacobi(L.removed, *X, tau, o, X);
-  for (int s = 0; s < o.level_sweeps; ++s) L.sweep(X, tau, o);
 }
 
 }  // namespace matdeform

@@ -47,26 +47,20 @@ enum class PyramidMethod {
 };
 
 struct PyramidSolveOptions {
-  int max_iterations = 10000;  // >= 0: the budget of sweeps on the full mesh
+  int max_iterations = 10000;  // >= 0: the budget of sweeps
   double tol = 1e-6;           // stop once the largest move < tol x the rest diagonal
   bool stretch = true;         // scale w_i by |v' - v'_i| / l_i (paper, Sec. 2)
   bool push = true;            // step 2: control vertices push their neighbours
   PyramidMethod method = PyramidMethod::GaussSeidel;
-  int anderson = 5;              // Anderson acceleration window over the sweeps (0: plain sweeps)
-  bool multilevel = true;        // start from the solution on the coarser levels (coarse-to-fine)
-  int level_sweeps = 2;         // pre- and post-smoothing sweeps of a V-cycle on each level
-  int coarse_iterations = 200;  // sweep budget on the coarsest level per cycle
-  double coarse_damping = 1.0;
-  double coarse_scale = 1.0;
-  bool restrict_average = false;
+  int anderson = 20;  // Anderson acceleration window over the sweeps (0: plain sweeps)
   const Vertices* initial = nullptr;  // (n,3) start (controls are replaced); nullptr: rest
-  bool record_moves = false;          // keep every full-mesh sweep's move in last_moves()
+  bool record_moves = false;          // keep every sweep's move in last_moves()
 };
 
 class PyramidDeformer {
  public:
   // vertices (n,3), faces (m,3), control: k >= 1 unique vertex indices in [0, n).
-  // Precomputes the description, the coarser levels, their descriptions and colourings.
+  // Precomputes the description, the colouring and the control adjacency of step 2.
   PyramidDeformer(const Vertices& vertices, const Faces& faces, const std::vector<int>& control);
   ~PyramidDeformer();
   PyramidDeformer(const PyramidDeformer&) = delete;
@@ -83,22 +77,17 @@ class PyramidDeformer {
   const PyramidCoordinates& coordinates() const;
   const std::vector<int>& control() const { return control_; }
   int num_vertices() const;
-  int num_colors() const;  // of the full mesh
+  int num_colors() const;
   double diagonal() const { return diag_; }
   // Vertices that never move: isolated, or in a part of the mesh that no control reaches.
   int num_passive() const;
-  // Vertex counts of the levels, full mesh first.
-  std::vector<int> level_sizes() const;
 
-  int last_iterations() const { return last_iterations_; }  // full-mesh sweeps
+  int last_iterations() const { return last_iterations_; }  // sweeps
   double last_move() const { return last_move_; }           // fraction of the rest diagonal
   const std::vector<double>& last_moves() const { return last_moves_; }
 
  private:
   struct Impl;
-  // One FAS V-cycle from level l on X with the coarse-grid offsets tau (nullptr on level 0).
-  void cycle(size_t l, Vertices* X, const Vertices* tau, const PyramidSolveOptions& o,
-             double limit) const;
   std::unique_ptr<Impl> impl_;
   std::vector<int> control_;
   double diag_ = 0;
