@@ -18,6 +18,11 @@ _METHODS = ("gauss-seidel", "jacobi")
 KIND_INTERIOR, KIND_BOUNDARY, KIND_FOLLOWER, KIND_ISOLATED = 0, 1, 2, 3
 
 
+def _is_count(x) -> bool:
+    """An integer >= 0 (numpy integers too, bools not)."""
+    return isinstance(x, (int, np.integer)) and not isinstance(x, bool) and x >= 0
+
+
 def pyramid_coordinates(vertices, faces) -> dict:
     """The per-vertex pyramid description of a mesh at rest, for inspection and tests.
 
@@ -109,14 +114,9 @@ class PyramidDeformer:
         """
         k = len(self._control)
         x = as_vertices(control_positions, "control_positions", rows=k)
-        if iterations is None:
-            it = 100_000
-        elif isinstance(iterations, (int, np.integer)) and not isinstance(iterations, bool):
-            it = int(iterations)
-            if it < 0:
-                raise ValueError(f"iterations: expected an integer >= 0 or None, got {it}")
-        else:
+        if iterations is not None and not _is_count(iterations):
             raise ValueError(f"iterations: expected an integer >= 0 or None, got {iterations!r}")
+        it = 100_000 if iterations is None else int(iterations)
         try:
             t = float(tol)
         except (TypeError, ValueError):
@@ -126,7 +126,7 @@ class PyramidDeformer:
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
         if method not in _METHODS:
             raise ValueError(f"method: expected one of {_METHODS}, got {method!r}")
-        if not isinstance(anderson, (int, np.integer)) or isinstance(anderson, bool) or anderson < 0:
+        if not _is_count(anderson):
             raise ValueError(f"anderson: expected an integer >= 0, got {anderson!r}")
         return self._core.deform(
             x, it, t, x0, bool(stretch), bool(push), method, bool(record_moves), int(anderson)
