@@ -110,7 +110,9 @@ class PyramidDeformer:
         record_moves : keep every sweep's move in ``last_moves``.
 
         After the call ``last_iterations`` is the number of sweeps and ``last_move`` the largest
-        move of the last one, as a fraction of the rest diagonal (NaN after 0 sweeps).
+        move of the last one, as a fraction of the rest diagonal (NaN after 0 sweeps). The
+        result never contains NaN: should the iteration overflow (not seen with the defaults)
+        it raises RuntimeError instead.
         """
         k = len(self._control)
         x = as_vertices(control_positions, "control_positions", rows=k)
