@@ -10,7 +10,9 @@ pinned to their pose positions. The reference mesh is deformed and compared with
     error = RMS over all vertices of |x - x_pose| / bounding-box diagonal of the reference
 
 Rows: uniform stiffness, learned isotropic, learned anisotropic (when MaterialDeformer accepts
-(E,3) bend), Blender's Laplacian Deform with the same pinned vertices.
+(E,3) bend), pyramid coordinates (md.PyramidDeformer: the anchor vertices as controls at their
+pose positions, no stiffness, no rotations), Blender's Laplacian Deform with the same pinned
+vertices.
 
     python bench/bench_quality.py [--data DIR] [--no-blender] [--explore]
 """
@@ -134,6 +136,11 @@ class Bench:
             x = self.reconstruct(h, shear, bend)
             errs.append(rms_error(x, self.poses[h], self.diag))
         return errs
+
+    def pyramid(self, tol: float = 1e-7) -> list[float]:
+        """Pyramid coordinates: the anchor vertices as controls at their pose positions."""
+        d = md.PyramidDeformer(self.rest, self.faces, self.pinned)
+        return [rms_error(d.deform(p[self.pinned], tol=tol), p, self.diag) for p in self.poses]
 
     def laplacian(self, iterations: int = 1) -> tuple[list[float], float] | None:
         """Blender's Laplacian Deform for all poses; None if blender is not installed."""
@@ -277,6 +284,8 @@ def main() -> None:
                 print(fmt_row(name, b.run(learned(True, frame=frame, **kw))))
     else:
         print("| learned anisotropic | pending: MaterialDeformer does not accept (E,3) bend yet |")
+    if hasattr(md, "PyramidDeformer"):
+        print(fmt_row("pyramid coordinates (no stiffness; tol 1e-7, <= 3000 sweeps)", b.pyramid()))
     if not args.no_blender:
         lap = b.laplacian()
         if lap is None:

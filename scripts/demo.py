@@ -3,6 +3,8 @@
 Writes OBJ files (rest, uniform, material-aware) and a PNG picture into out/ (or --out).
 Paper Fig. 1/10: a tentacle whose stiffness grows with its girth curls into a spiral when its
 tip is rotated, while uniform material gives a plain arc. Fig. 4: a bar with a stiff middle.
+Also poses meshes with a few control vertices by pyramid coordinates (demo_pyramid.png): a bar,
+and the cat from shared/data/cat-poses when it is there.
 """
 
 from __future__ import annotations
@@ -75,6 +77,59 @@ def draw(ax, v, f, stiff_v, title):
     ax.set_title(title, fontsize=10)
 
 
+CAT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses"
+
+
+def pyramid_bar():
+    """A bar posed by 8 control vertices: 4 on each end ring, the far end lifted and turned."""
+    v, f = shapes.tube(length=10.0, radius=0.7, n_around=16, n_along=60)
+    ring0 = np.flatnonzero(np.abs(v[:, 0]) < 1e-9)[:16:4]
+    ring1 = np.flatnonzero(np.abs(v[:, 0] - 10.0) < 1e-9)[:16:4]
+    ctrl = np.concatenate([ring0, ring1])
+    R = rot([0, 0, 1], 0.4 * np.pi)
+    c = np.array([10.0, 0.0, 0.0])
+    target = np.vstack([v[ring0], (v[ring1] - c) @ R.T + [7.0, 4.0, 0.0]])
+    X = md.PyramidDeformer(v, f, ctrl).deform(target, tol=1e-7)
+    return v, f, ctrl, X
+
+
+def pyramid_cat():
+    """The cat with 9 control vertices (feet, head, tail, back) at their places in pose 3."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+    from bench_pyramid import nine_controls
+
+    v, f = md.read_obj(CAT / "cat-reference.obj")
+    pose = md.read_obj(CAT / "cat-03.obj")[0]
+    ctrl = nine_controls(v)
+    X = md.PyramidDeformer(v, f, ctrl).deform(pose[ctrl], tol=1e-7)
+    return v, f, ctrl, X
+
+
+def draw_posed(ax, v, f, ctrl, title, view):
+    draw(ax, v, f, np.ones(len(v)), title)
+    ax.scatter(*v[ctrl].T, c="red", s=18, depthshade=False)
+    ax.view_init(*view)
+
+
+def pyramid_figure(out: Path) -> None:
+    cases = [("bar", pyramid_bar, (90, -90), [0, 1, 2])]
+    if (CAT / "cat-reference.obj").exists():
+        cases.append(("cat", pyramid_cat, (12, -65), [2, 0, 1]))  # the cat is y-up
+    fig = plt.figure(figsize=(10, 4.5 * len(cases)))
+    for row, (name, fn, view, axes) in enumerate(cases):
+        v, f, ctrl, X = fn()
+        md.write_obj(out / f"{name}_pyramid.obj", X, f)
+        for col, (P, label) in enumerate([(v, "rest"), (X, "pyramid coordinates")]):
+            ax = fig.add_subplot(len(cases), 2, 2 * row + col + 1, projection="3d")
+            title = f"{name}: {label} ({len(ctrl)} control vertices)"
+            draw_posed(ax, P[:, axes], f, ctrl, title, view)
+    fig.tight_layout()
+    fig.savefig(out / "demo_pyramid.png", dpi=100)
+    print(f"wrote {out}/demo_pyramid.png")
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="out")
@@ -99,6 +154,7 @@ def main():
     fig.tight_layout()
     fig.savefig(out / "demo_core.png", dpi=110)
     print(f"wrote {out}/demo_core.png and OBJ files")
+    pyramid_figure(out)
 
 
 if __name__ == "__main__":

@@ -143,3 +143,114 @@ Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces) {
 }
 
 }  // namespace matdeform
+
+namespace matdeform {
+
+VertexFans vertex_fans(int num_vertices, const Faces& faces) {
+  const int n = num_vertices;
+  const int m = static_cast<int>(faces.rows());
+  // Vertex -> incident faces (CSR).
+  std::vector<int> fo(static_cast<size_t>(n) + 1, 0), fi(static_cast<size_t>(3) * m);
+  for (int f = 0; f < m; ++f)
+    for (int k = 0; k < 3; ++k) ++fo[static_cast<size_t>(faces(f, k)) + 1];
+  for (int v = 0; v < n; ++v) fo[v + 1] += fo[v];
+  {
+    std::vector<int> next(fo.begin(), fo.end() - 1);
+    for (int f = 0; f < m; ++f)
+      for (int k = 0; k < 3; ++k) fi[static_cast<size_t>(next[faces(f, k)]++)] = f;
+  }
+  VertexFans out;
+  out.offsets.assign(static_cast<size_t>(n) + 1, 0);
+  out.kind.assign(static_cast<size_t>(n), kFanIsolated);
+  out.ring.reserve(static_cast<size_t>(3) * m);
+  // Per vertex: its faces as directed pairs (a, b), face = (v, a, b) up to rotation.
+  std::vector<std::array<int, 2>> sides;
+  std::vector<char> used;
+  std::vector<int> walk, nbrs;
+  for (int v = 0; v < n; ++v) {
+    sides.clear();
+    for (int q = fo[v]; q < fo[v + 1]; ++q) {
+      const int f = fi[static_cast<size_t>(q)];
+      int k = 0;
+      while (faces(f, k) != v) ++k;
+      sides.push_back({faces(f, (k + 1) % 3), faces(f, (k + 2) % 3)});
+    }
+    const size_t nf = sides.size();
+    if (nf == 0) {
+      out.offsets[static_cast<size_t>(v) + 1] = static_cast<int>(out.ring.size());
+      continue;
+    }
+    // Neighbour degrees in the fan graph (each face links a and b).
+    nbrs.clear();
+    for (const auto& s : sides) nbrs.insert(nbrs.end(), {s[0], s[1]});
+    std::sort(nbrs.begin(), nbrs.end());
+    int ends = 0, start = -1;
+    bool manifold = true;
+    for (size_t i = 0; i < nbrs.size();) {
+      size_t j = i;
+      while (j < nbrs.size() && nbrs[j] == nbrs[i]) ++j;
+      if (j - i > 2) manifold = false;
+      if (j - i == 1) {
+        ++ends;
+        // Start an open fan where a face leaves from it (a of (v, a, b)), to follow orientation.
+        for (const auto& s : sides)
+          if (s[0] == nbrs[i] && (start < 0 || nbrs[i] < start)) start = nbrs[i];
+      }
+      i = j;
+    }
+    if (ends != 0 && ends != 2) manifold = false;
+    if (manifold && ends == 2 && start < 0) {
+      // Inconsistent orientation: start at the smaller end.
+      for (size_t i = 0; i < nbrs.size(); ++i) {
+        const bool single =
+            (i == 0 || nbrs[i - 1] != nbrs[i]) && (i + 1 == nbrs.size() || nbrs[i + 1] != nbrs[i]);
+        if (single) {
+          start = nbrs[i];
+          break;
+        }
+      }
+    }
+    walk.clear();
+    if (manifold) {
+      used.assign(nf, 0);
+      int cur = ends == 2 ? start : sides[0][0];
+      walk.push_back(cur);
+      for (size_t step = 0; step < nf; ++step) {
+        // Prefer the face leaving cur in its own orientation, then one entering it.
+        int pick = -1, to = -1;
+        for (size_t s = 0; s < nf && pick < 0; ++s)
+          if (!used[s] && sides[s][0] == cur) pick = static_cast<int>(s), to = sides[s][1];
+        for (size_t s = 0; s < nf && pick < 0; ++s)
+          if (!used[s] && sides[s][1] == cur) pick = static_cast<int>(s), to = sides[s][0];
+        if (pick < 0) break;
+        used[static_cast<size_t>(pick)] = 1;
+        cur = to;
+        walk.push_back(cur);
+      }
+      // A closed fan returns to its start after nf faces; an open one ends after nf faces.
+      if (ends == 0) {
+        if (walk.size() != nf + 1 || walk.back() != walk.front()) manifold = false;
+        walk.pop_back();
+      } else if (walk.size() != nf + 1) {
+        manifold = false;
+      }
+      if (manifold) {
+        std::vector<int> check(walk);
+        std::sort(check.begin(), check.end());
+        if (std::adjacent_find(check.begin(), check.end()) != check.end()) manifold = false;
+      }
+    }
+    if (manifold) {
+      out.kind[static_cast<size_t>(v)] = ends == 0 ? kFanClosed : kFanOpen;
+      out.ring.insert(out.ring.end(), walk.begin(), walk.end());
+    } else {
+      out.kind[static_cast<size_t>(v)] = kFanNonManifold;
+      nbrs.erase(std::unique(nbrs.begin(), nbrs.end()), nbrs.end());
+      out.ring.insert(out.ring.end(), nbrs.begin(), nbrs.end());
+    }
+    out.offsets[static_cast<size_t>(v) + 1] = static_cast<int>(out.ring.size());
+  }
+  return out;
+}
+
+}  // namespace matdeform

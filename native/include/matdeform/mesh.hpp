@@ -63,4 +63,23 @@ std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* co
 // Twice the area of each face, length m. Throws std::invalid_argument for out-of-range faces.
 Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces);
 
+// Ordered one-ring of every vertex, walked through the faces around it (by shared edges, so
+// face orientation does not matter). ring[offsets[v] .. offsets[v+1]) are v's neighbours:
+//  - kFanClosed: a closed fan, in cyclic order (faces (v, ring[i], ring[i+1]), last wraps);
+//  - kFanOpen: one open fan from one boundary neighbour to the other (no wrap-around face);
+//  - kFanNonManifold: anything else (an edge in more than two of v's faces, several fans);
+//    ring lists the distinct neighbours in increasing index order;
+//  - kFanIsolated: v is in no face, ring is empty.
+// Where the faces are consistently oriented the order follows them (face (v, ring[i],
+// ring[i+1]) has that orientation), so the ring turns counter-clockwise about the outward normal.
+enum FanKind : signed char { kFanClosed = 0, kFanOpen = 1, kFanNonManifold = 2, kFanIsolated = 3 };
+struct VertexFans {
+  std::vector<int> offsets;  // n + 1
+  std::vector<int> ring;
+  std::vector<signed char> kind;  // FanKind per vertex
+};
+
+// faces must hold indices in [0, num_vertices) (validate_mesh()).
+VertexFans vertex_fans(int num_vertices, const Faces& faces);
+
 }  // namespace matdeform

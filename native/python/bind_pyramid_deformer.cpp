@@ -1,0 +1,88 @@
+#include <string>
+
+#include "convert.hpp"
+#include "matdeform/pyramid_deformer.hpp"
+
+namespace py = pybind11;
+using namespace matdeform;
+
+namespace {
+PyramidMethod parse_method(const std::string& name) {
+  if (name == "gauss-seidel") return PyramidMethod::GaussSeidel;
+  if (name == "jacobi") return PyramidMethod::Jacobi;
+  throw std::invalid_argument("method: expected 'gauss-seidel' or 'jacobi'");
+}
+
+py::dict to_dict(const PyramidCoordinates& pc) {
+  py::dict d;
+  d["offsets"] = py::array_t<int>(static_cast<py::ssize_t>(pc.offsets.size()), pc.offsets.data());
+  d["neighbors"] =
+      py::array_t<int>(static_cast<py::ssize_t>(pc.neighbors.size()), pc.neighbors.data());
+  const auto slots = static_cast<py::ssize_t>(pc.alpha.size());
+  d["alpha"] = py::array_t<double>(slots, pc.alpha.data());
+  d["beta"] = py::array_t<double>(slots, pc.beta.data());
+  d["length"] = py::array_t<double>(slots, pc.length.data());
+  d["weight"] = py::array_t<double>(slots, pc.weight.data());
+  d["normal"] = pc.normal;
+  d["offset"] = pc.offset;
+  d["height"] = pc.height;
+  d["kind"] = py::array_t<signed char>(static_cast<py::ssize_t>(pc.kind.size()), pc.kind.data());
+  return d;
+}
+}  // namespace
+
+void bind_pyramid_deformer(py::module_& m) {
+  m.def(
+      "pyramid_coordinates",
+      [](const Vertices& vertices, const Faces& faces) {
+        PyramidCoordinates pc;
+        {
+          py::gil_scoped_release release;
+          pc = pyramid_coordinates(vertices, faces);
+        }
+        return to_dict(pc);
+      },
+      py::arg("vertices"), py::arg("faces"));
+  py::class_<PyramidDeformer>(m, "PyramidDeformer")
+      .def(py::init(
+               [](const Vertices& vertices, const Faces& faces, const std::vector<int>& control) {
+                 py::gil_scoped_release release;
+                 return std::make_unique<PyramidDeformer>(vertices, faces, control);
+               }),
+           py::arg("vertices"), py::arg("faces"), py::arg("control"))
+      .def(
+          "deform",
+          [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
+             std::optional<Vertices> initial, bool stretch, bool push, const std::string& method,
+             bool record_moves, int anderson) {
+            PyramidSolveOptions o;
+            o.max_iterations = iterations;
+            o.tol = tol;
+            o.stretch = stretch;
+            o.push = push;
+            o.method = parse_method(method);
+            o.initial = initial ? &*initial : nullptr;
+            o.record_moves = record_moves;
+            o.anderson = anderson;
+            py::gil_scoped_release release;
+            return self.deform(control_positions, o);
+          },
+          py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
+          py::arg("stretch"), py::arg("push"), py::arg("method"), py::arg("record_moves"),
+          py::arg("anderson"))
+      .def(
+          "reconstruct",
+          [](const PyramidDeformer& self, const Vertices& X, bool stretch) {
+            py::gil_scoped_release release;
+            return self.reconstruct(X, stretch);
+          },
+          py::arg("positions"), py::arg("stretch"))
+      .def_property_readonly(
+          "coordinates", [](const PyramidDeformer& self) { return to_dict(self.coordinates()); })
+      .def_property_readonly("last_iterations", &PyramidDeformer::last_iterations)
+      .def_property_readonly("last_move", &PyramidDeformer::last_move)
+      .def_property_readonly("last_moves", &PyramidDeformer::last_moves)
+      .def_property_readonly("num_colors", &PyramidDeformer::num_colors)
+      .def_property_readonly("num_passive", &PyramidDeformer::num_passive)
+      .def_property_readonly("diagonal", &PyramidDeformer::diagonal);
+}

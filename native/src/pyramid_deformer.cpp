@@ -1,0 +1,693 @@
+#include "matdeform/pyramid_deformer.hpp"
+
+#include <Eigen/Cholesky>
+#include <Eigen/Geometry>
+#include <Eigen/LU>
+#include <Eigen/SVD>
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+#include <string>
+#include <utility>
+
+#include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
+#include "task_pool.hpp"
+
+namespace matdeform {
+
+namespace {
+
+using Vec3 = Eigen::Vector3d;
+
+inline Vec3 row(const double* X, int v) { return Vec3(X[3 * v], X[3 * v + 1], X[3 * v + 2]); }
+
+// Relative thresholds below which a fan counts as degenerate (its vertex becomes a follower).
+constexpr double kAreaEps = 1e-10;   // |polygon vector area| against sum |x_i - c|^2
+constexpr double kLengthEps = 1e-8;  // l_i against the mean |x_i - c|
+constexpr double kReproduceEps = 1e-9;
+constexpr double kPi = 3.14159265358979323846;  // |sum w_i v'_i - v'| against the mean |x_i - c|
+
+// Newell normal (twice the vector area) of the neighbour polygon x_1..x_m about their mean c;
+// the last edge closes the polygon. For a closed fan it is the sum of the fan's face area vectors
+// whatever the position of the vertex itself, so it is the usual area-weighted vertex normal.
+inline Vec3 newell(const double* X, const int* ring, int m, const Vec3& c) {
+  Vec3 N = Vec3::Zero();
+  Vec3 a = row(X, ring[m - 1]) - c;
+  for (int i = 0; i < m; ++i) {
+    const Vec3 b = row(X, ring[i]) - c;
+    N += a.cross(b);
+    a = b;
+  }
+  return N;
+}
+
+inline Vec3 centroid(const double* X, const int* ring, int m) {
+  Vec3 c = Vec3::Zero();
+  for (int i = 0; i < m; ++i) c += row(X, ring[i]);
+  return c / m;
+}
+
+// Describes vertex v from its ring (rest positions X). Returns false when the fan is degenerate.
+bool describe(const double* X, int v, const int* ring, int m, bool open, double* alpha,
+              double* beta, double* length, double* weight, Vec3* normal, double* offset,
+              double* height) {
+  if (m < 3) return false;
+  const Vec3 c = centroid(X, ring, m);
+  double spread = 0, spread2 = 0;
+  for (int i = 0; i < m; ++i) {
+    const double r = (row(X, ring[i]) - c).norm();
+    spread += r / m;
+    spread2 += r * r;
+  }
+  const Vec3 N = newell(X, ring, m, c);
+  if (!(N.norm() > kAreaEps * spread2)) return false;
+  const Vec3 n = N.normalized();
+  const Vec3 dv = row(X, v) - c;
+  const double H = n.dot(dv);
+  const Vec3 p = dv - H * n;  // v' relative to c
+  std::vector<Vec3> e(static_cast<size_t>(m));
+  std::vector<double> t(static_cast<size_t>(m));
+  for (int i = 0; i < m; ++i) {
+    const Vec3 d = row(X, ring[i]) - c;
+    t[i] = n.dot(d);
+    e[i] = d - t[i] * n - p;  // v'_i - v'
+    length[i] = e[i].norm();
+    if (!(length[i] > kLengthEps * spread)) return false;
+  }
+  for (int i = 0; i < m; ++i) {
+    const Vec3& a = e[i];
+    const Vec3& b = e[(i + 1) % m];
+    alpha[i] = std::atan2(n.dot(a.cross(b)), a.dot(b));
+    beta[i] = std::atan2(length[i], H - t[i]);
+  }
+  // The projected fan must not fold: every face's angle at v' in (0, pi), so that v' sees the
+  // whole neighbour polygon (its kernel) and the weights below are positive. Folded fans make
+  // the local placement unstable (weights of both signs, above 1), see docs/pyramid.md.
+  double turn = 0;
+  for (int i = 0; i < (open ? m - 1 : m); ++i) {
+    if (!(alpha[i] > 0 && alpha[i] < kPi)) return false;
+    turn += alpha[i];
+  }
+  if (!open && std::abs(turn - 2 * kPi) > 1e-6) return false;
+  // Mean value weights w_i = (tan(alpha_{i-1}/2) + tan(alpha_i/2)) / l_i (Floater 2003), with
+  // signed angles so that they reproduce v' for any polygon (Hormann & Floater 2006). Multiplied
+  // by prod_j cos(alpha_j/2) >= 0 they read sin((alpha_{i-1}+alpha_i)/2) prod_{j != i-1,i}
+  // cos(alpha_j/2) / l_i, which stays finite when v' lies on an edge (alpha = pi): an open fan's
+  // closing edge on a straight boundary.
+  double sum = 0, sum_abs = 0;
+  for (int i = 0; i < m; ++i) {
+    const int prev = (i + m - 1) % m;
+    double w = std::sin(0.5 * (alpha[prev] + alpha[i]));
+    for (int j = 0; j < m; ++j)
+      if (j != prev && j != i) w *= std::cos(0.5 * alpha[j]);
+    weight[i] = w / length[i];
+    sum += weight[i];
+    sum_abs += std::abs(weight[i]);
+  }
+  if (!(std::abs(sum) > 1e-9 * sum_abs)) return false;
+  Vec3 rep = Vec3::Zero();
+  for (int i = 0; i < m; ++i) {
+    weight[i] /= sum;
+    rep += weight[i] * e[i];
+  }
+  if (!(rep.norm() <= kReproduceEps * spread)) return false;
+  *normal = n;
+  *offset = -n.dot(c);
+  *height = H;
+  return true;
+}
+
+}  // namespace
+
+PyramidCoordinates pyramid_coordinates(const Vertices& vertices, const Faces& faces) {
+  validate_mesh(vertices, faces);
+  const int n = static_cast<int>(vertices.rows());
+  const VertexFans fans = vertex_fans(n, faces);
+  PyramidCoordinates pc;
+  pc.offsets = fans.offsets;
+  pc.neighbors = fans.ring;
+  const size_t slots = fans.ring.size();
+  pc.alpha.assign(slots, 0.0);
+  pc.beta.assign(slots, 0.0);
+  pc.length.assign(slots, 0.0);
+  pc.weight.assign(slots, 0.0);
+  pc.normal = Vertices::Zero(n, 3);
+  pc.offset = Eigen::VectorXd::Zero(n);
+  pc.height = Eigen::VectorXd::Zero(n);
+  pc.kind.assign(static_cast<size_t>(n), kPyramidIsolated);
+  const double* X = vertices.data();
+  for (int v = 0; v < n; ++v) {
+    const signed char fk = fans.kind[static_cast<size_t>(v)];
+    if (fk == kFanIsolated) continue;
+    const int o = pc.offsets[static_cast<size_t>(v)];
+    const int m = pc.offsets[static_cast<size_t>(v) + 1] - o;
+    Vec3 nv;
+    bool ok = false;
+    if (fk == kFanClosed || fk == kFanOpen) {
+      ok = describe(X, v, pc.neighbors.data() + o, m, fk == kFanOpen, pc.alpha.data() + o,
+                    pc.beta.data() + o, pc.length.data() + o, pc.weight.data() + o, &nv,
+                    &pc.offset(v), &pc.height(v));
+    }
+    if (ok) {
+      pc.kind[static_cast<size_t>(v)] = fk == kFanClosed ? kPyramidInterior : kPyramidBoundary;
+      pc.normal.row(v) = nv.transpose();
+    } else {
+      pc.kind[static_cast<size_t>(v)] = kPyramidFollower;
+      for (int s = o; s < o + m; ++s) pc.alpha[s] = pc.beta[s] = pc.length[s] = pc.weight[s] = 0;
+      pc.offset(v) = pc.height(v) = 0;
+    }
+  }
+  return pc;
+}
+
+namespace {
+
+// Chunks per thread of the parallel loops: small enough for the claims to balance a late worker.
+int chunks() { return 4 * num_threads(); }
+constexpr int kMinChunk = 256;
+
+// Largest |a_v - b_v| over the listed vertices, in parallel.
+double max_move(const Vertices& A, const Vertices& B, const std::vector<int>& verts) {
+  const int n = static_cast<int>(verts.size());
+  const int parts = std::max(1, std::min(chunks(), n / kMinChunk));
+  std::vector<double> part(static_cast<size_t>(parts), 0.0);
+  run_tasks(parts, [&](int p) {
+    const int b = static_cast<int>(static_cast<int64_t>(n) * p / parts);
+    const int e = static_cast<int>(static_cast<int64_t>(n) * (p + 1) / parts);
+    double mx = 0;
+    for (int r = b; r < e; ++r) {
+      const int v = verts[static_cast<size_t>(r)];
+      const double d = (A.row(v) - B.row(v)).squaredNorm();
+      // NaN must not hide behind max(): it propagates as infinity
+      mx = std::isnan(d) ? std::numeric_limits<double>::infinity() : std::max(mx, d);
+    }
+    part[static_cast<size_t>(p)] = mx;
+  });
+  double mx = 0;
+  for (double x : part) mx = std::max(mx, x);
+  return std::sqrt(mx);
+}
+
+}  // namespace
+
+// Everything a sweep needs: the description plus the colouring and step 2's adjacency.
+struct PyramidSolver {
+  Vertices rest;
+  PyramidCoordinates coords;
+  std::vector<double> cot_beta;          // per slot
+  std::vector<double> weight_per_len;    // per slot: w_i / l_i, for the stretch factor
+  std::vector<int> free;                 // vertices placed in step 1
+  std::vector<std::vector<int>> colors;  // free split into independent sets
+  std::vector<int> pushers;              // controls with a description next to a free vertex
+  std::vector<int> pushed, pushed_offsets, pushed_by;  // CSR: free vertex <- pushers rows
+  std::vector<int> push_row;                           // vertex -> row in pushed, or -1
+  int num_passive = 0;
+
+  PyramidSolver(const Vertices& vertices, const Faces& faces, const std::vector<char>& is_control);
+  Vec3 follow(int v, const double* X) const;
+  Vec3 place(int v, const double* X, bool stretch) const;
+  // Step 2 from positions x: per pusher its shift, per pushed vertex the mean of its pushers'.
+  void shifts(const double* x, std::vector<Vec3>* shift, std::vector<Vec3>* pushes) const;
+  // to_v = place(v, from) + push_v + tau_v for v in verts.
+  void apply(const std::vector<int>& verts, const double* from, double* to, const Vertices* tau,
+             const PyramidSolveOptions& o, const std::vector<Vec3>& pushes) const;
+  // One sweep over the free vertices (Gauss-Seidel by colours, or Jacobi), tau optional.
+  void sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const;
+  // Y_v = the placement of v from X (a Jacobi step) for v in verts; other rows untouched.
+  void jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
+              const PyramidSolveOptions& o, Vertices* Y) const;
+  // Sweeps (Anderson-accelerated) until the largest sweep move < limit or max_iterations.
+  // Returns the sweeps done; *move is the last sweep's largest move (absolute).
+  int iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o, int max_iterations,
+              double limit, double* move, std::vector<double>* moves, double diag) const;
+};
+
+PyramidSolver::PyramidSolver(const Vertices& vertices, const Faces& faces,
+                             const std::vector<char>& is_control)
+    : rest(vertices) {
+  coords = pyramid_coordinates(vertices, faces);
+  const int n = static_cast<int>(vertices.rows());
+  const auto& off = coords.offsets;
+  const auto& nb = coords.neighbors;
+  cot_beta.assign(nb.size(), 0.0);
+  weight_per_len.assign(nb.size(), 0.0);
+  for (int v = 0; v < n; ++v) {
+    if (coords.kind[static_cast<size_t>(v)] > kPyramidBoundary) continue;
+    // cot(beta_i) straight from the heights (1 / tan(beta) loses digits near pi/2).
+    const Vec3 nv = coords.normal.row(v).transpose();
+    const Vec3 c = centroid(rest.data(), nb.data() + off[v], off[v + 1] - off[v]);
+    for (int s = off[v]; s < off[v + 1]; ++s) {
+      const double t = nv.dot(rest.row(nb[s]).transpose() - c);
+      cot_beta[s] = (coords.height(v) - t) / coords.length[s];
+      weight_per_len[s] = coords.weight[s] / coords.length[s];
+    }
+  }
+  // Free vertices: reached from a control through edges, not controls, not isolated.
+  std::vector<char> reached(static_cast<size_t>(n), 0);
+  std::vector<int> queue;
+  for (int v = 0; v < n; ++v)
+    if (is_control[static_cast<size_t>(v)]) reached[static_cast<size_t>(v)] = 1, queue.push_back(v);
+  for (size_t q = 0; q < queue.size(); ++q) {
+    const int v = queue[q];
+    for (int s = off[v]; s < off[v + 1]; ++s) {
+      if (!reached[static_cast<size_t>(nb[s])]) {
+        reached[static_cast<size_t>(nb[s])] = 1;
+        queue.push_back(nb[s]);
+      }
+    }
+  }
+  std::vector<char> is_free(static_cast<size_t>(n), 0);
+  for (int v = 0; v < n; ++v) {
+    if (is_control[static_cast<size_t>(v)]) continue;
+    if (reached[static_cast<size_t>(v)] &&
+        coords.kind[static_cast<size_t>(v)] != kPyramidIsolated) {
+      is_free[static_cast<size_t>(v)] = 1;
+      free.push_back(v);
+    } else {
+      ++num_passive;
+    }
+  }
+  // Greedy colouring: same-coloured vertices are never neighbours, so each colour is placed in
+  // parallel and later colours see the new positions (Gauss-Seidel).
+  std::vector<int> color(static_cast<size_t>(n), -1);
+  std::vector<char> mark;
+  for (int v : free) {
+    std::fill(mark.begin(), mark.end(), 0);
+    for (int s = off[v]; s < off[v + 1]; ++s) {
+      const int c = color[static_cast<size_t>(nb[s])];
+      if (c >= 0) {
+        if (static_cast<size_t>(c) >= mark.size()) mark.resize(static_cast<size_t>(c) + 1, 0);
+        mark[static_cast<size_t>(c)] = 1;
+      }
+    }
+    size_t c = 0;
+    while (c < mark.size() && mark[c]) ++c;
+    color[static_cast<size_t>(v)] = static_cast<int>(c);
+    if (c >= colors.size()) colors.resize(c + 1);
+    colors[c].push_back(v);
+  }
+  // Step 2: controls with a description push their free neighbours.
+  std::vector<std::vector<int>> by(static_cast<size_t>(n));
+  for (int c = 0; c < n; ++c) {
+    if (!is_control[static_cast<size_t>(c)] ||
+        coords.kind[static_cast<size_t>(c)] > kPyramidBoundary)
+      continue;
+    bool any = false;
+    for (int s = off[c]; s < off[c + 1]; ++s) {
+      if (is_free[static_cast<size_t>(nb[s])]) {
+        by[static_cast<size_t>(nb[s])].push_back(static_cast<int>(pushers.size()));
+        any = true;
+      }
+    }
+    if (any) pushers.push_back(c);
+  }
+  pushed_offsets.push_back(0);
+  push_row.assign(static_cast<size_t>(n), -1);
+  for (int v : free) {
+    if (by[static_cast<size_t>(v)].empty()) continue;
+    push_row[static_cast<size_t>(v)] = static_cast<int>(pushed.size());
+    pushed.push_back(v);
+    pushed_by.insert(pushed_by.end(), by[static_cast<size_t>(v)].begin(),
+                     by[static_cast<size_t>(v)].end());
+    pushed_offsets.push_back(static_cast<int>(pushed_by.size()));
+  }
+}
+
+Vec3 PyramidSolver::follow(int v, const double* X) const {
+  // Best-fit similarity (Kabsch with scale) of v and its neighbours, rest -> current.
+  const int o = coords.offsets[static_cast<size_t>(v)];
+  const int m = coords.offsets[static_cast<size_t>(v) + 1] - o;
+  const int* ring = coords.neighbors.data() + o;
+  if (m == 0) return row(X, v);
+  const double* R0 = rest.data();
+  Vec3 c = row(X, v), c0 = row(R0, v);
+  for (int i = 0; i < m; ++i) {
+    c += row(X, ring[i]);
+    c0 += row(R0, ring[i]);
+  }
+  c /= m + 1;
+  c0 /= m + 1;
+  Eigen::Matrix3d Hm = (row(X, v) - c) * (row(R0, v) - c0).transpose();
+  double s0 = (row(R0, v) - c0).squaredNorm();
+  for (int i = 0; i < m; ++i) {
+    const Vec3 a0 = row(R0, ring[i]) - c0;
+    Hm += (row(X, ring[i]) - c) * a0.transpose();
+    s0 += a0.squaredNorm();
+  }
+  if (!(s0 > 0) || !Hm.allFinite()) return c;
+  const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hm, Eigen::ComputeFullU | Eigen::ComputeFullV);
+  Eigen::Vector3d sig = svd.singularValues();
+  Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+  if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) {
+    D(2, 2) = -1;
+    sig(2) = -sig(2);
+  }
+  const Eigen::Matrix3d R = svd.matrixU() * D * svd.matrixV().transpose();
+  return c + (sig.sum() / s0) * (R * (row(R0, v) - c0));
+}
+
+Vec3 PyramidSolver::place(int v, const double* X, bool stretch) const {
+  const signed char kind = coords.kind[static_cast<size_t>(v)];
+  if (kind == kPyramidIsolated) return row(X, v);
+  if (kind == kPyramidFollower) return follow(v, X);
+  const int o = coords.offsets[static_cast<size_t>(v)];
+  const int m = coords.offsets[static_cast<size_t>(v) + 1] - o;
+  const int* ring = coords.neighbors.data() + o;
+  // The neighbours relative to their mean c, gathered once.
+  constexpr int kStack = 24;
+  Vec3 stack[kStack];
+  std::vector<Vec3> heap;
+  Vec3* d = stack;
+  if (m > kStack) {
+    heap.resize(static_cast<size_t>(m));
+    d = heap.data();
+  }
+  Vec3 c = Vec3::Zero();
+  for (int i = 0; i < m; ++i) {
+    d[i] = row(X, ring[i]);
+    c += d[i];
+  }
+  c /= m;
+  double spread2 = 0;
+  for (int i = 0; i < m; ++i) {
+    d[i] -= c;
+    spread2 += d[i].squaredNorm();
+  }
+  Vec3 N = d[m - 1].cross(d[0]);
+  for (int i = 1; i < m; ++i) N += d[i - 1].cross(d[i]);
+  const double nn = N.norm();
+  // The current neighbours have collapsed onto a line or a point: no plane, follow instead.
+  if (!(nn > kAreaEps * spread2)) return follow(v, X);
+  const Vec3 n = N / nn;
+  for (int i = 0; i < m; ++i) d[i] -= n.dot(d[i]) * n;  // v'_i - c on the plane P through c
+  // Eq. 1: v' = sum w_i v'_i.
+  Vec3 vp = Vec3::Zero();
+  bool done = false;
+  if (stretch) {
+    // w_i |v' - v'_i| / l_i with v' the projection of the current v.
+    Vec3 p = row(X, v) - c;
+    p -= n.dot(p) * n;
+    const double* wl = weight_per_len.data() + o;
+    double wsum = 0;
+    for (int i = 0; i < m; ++i) {
+      const double wi = wl[i] * (p - d[i]).norm();
+      vp += wi * d[i];
+      wsum += wi;
+    }
+    // Unless v' sits on every v'_i at once (then there is nothing to scale by).
+    if (wsum > 1e-300 && vp.allFinite()) {
+      vp /= wsum;
+      done = true;
+    }
+  }
+  if (!done) {
+    const double* w = coords.weight.data() + o;
+    vp.setZero();
+    for (int i = 0; i < m; ++i) vp += w[i] * d[i];
+  }
+  // Eq. 2: v = v' + n mean(h_i), h_i = |v' - v'_i| cot(beta_i) + (v_i - v'_i).n; the second
+  // terms are the neighbours' heights above P, which average to zero about their mean c.
+  const double* cb = cot_beta.data() + o;
+  double h = 0;
+  for (int i = 0; i < m; ++i) h += (vp - d[i]).norm() * cb[i];
+  return c + vp + (h / m) * n;
+}
+
+void PyramidSolver::shifts(const double* x, std::vector<Vec3>* shift,
+                           std::vector<Vec3>* pushes) const {
+  // Per control: the shift of its neighbours along n that would put the control at the mean
+  // height mean(h_i) its description predicts above their plane (paper step 2).
+  const auto& off = coords.offsets;
+  shift->resize(pushers.size());
+  parallel_ranges(static_cast<int>(pushers.size()), kMinChunk, chunks(), [&](int b, int e) {
+    for (int j = b; j < e; ++j) {
+      const int v = pushers[static_cast<size_t>(j)];
+      const int o = off[static_cast<size_t>(v)];
+      const int m = off[static_cast<size_t>(v) + 1] - o;
+      const int* ring = coords.neighbors.data() + o;
+      const Vec3 c = centroid(x, ring, m);
+      const Vec3 N = newell(x, ring, m, c);
+      double spread2 = 0;
+      for (int i = 0; i < m; ++i) spread2 += (row(x, ring[i]) - c).squaredNorm();
+      (*shift)[static_cast<size_t>(j)].setZero();
+      if (!(N.norm() > kAreaEps * spread2)) continue;
+      const Vec3 n = N.normalized();
+      const Vec3 dv = row(x, v) - c;
+      const double H = n.dot(dv);
+      const Vec3 p = dv - H * n;
+      double target = 0;
+      for (int i = 0; i < m; ++i) {
+        Vec3 q = row(x, ring[i]) - c;
+        q -= n.dot(q) * n;
+        target += (p - q).norm() * cot_beta[static_cast<size_t>(o + i)];
+      }
+      (*shift)[static_cast<size_t>(j)] = (H - target / m) * n;
+    }
+  });
+  // A vertex next to several controls takes the mean of their shifts.
+  pushes->resize(pushed.size());
+  for (size_t j = 0; j < pushed.size(); ++j) {
+    Vec3 s = Vec3::Zero();
+    const int qb = pushed_offsets[j], qe = pushed_offsets[j + 1];
+    for (int q = qb; q < qe; ++q) s += (*shift)[static_cast<size_t>(pushed_by[q])];
+    (*pushes)[j] = s / (qe - qb);
+  }
+}
+
+void PyramidSolver::apply(const std::vector<int>& verts, const double* from, double* to,
+                          const Vertices* tau, const PyramidSolveOptions& o,
+                          const std::vector<Vec3>& pushes) const {
+  parallel_ranges(static_cast<int>(verts.size()), kMinChunk, chunks(), [&](int b, int e) {
+    for (int r = b; r < e; ++r) {
+      const int v = verts[static_cast<size_t>(r)];
+      Vec3 p = place(v, from, o.stretch);
+      if (o.push && push_row[static_cast<size_t>(v)] >= 0) {
+        p += pushes[static_cast<size_t>(push_row[static_cast<size_t>(v)])];
+      }
+      if (tau) p += tau->row(v).transpose();
+      to[3 * v] = p(0), to[3 * v + 1] = p(1), to[3 * v + 2] = p(2);
+    }
+  });
+}
+
+void PyramidSolver::sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const {
+  // Step 2 folded into step 1: each free vertex is placed from its description plus the shift
+  // its controls ask for, both from the sweep's start. The fixed point is then the same for
+  // Jacobi and for Gauss-Seidel in any colour order.
+  std::vector<Vec3> shift, pushes;
+  if (o.push) shifts(X->data(), &shift, &pushes);
+  if (o.method == PyramidMethod::Jacobi) {
+    const Vertices old = *X;
+    apply(free, old.data(), X->data(), tau, o, pushes);
+  } else {
+    for (const auto& cls : colors) apply(cls, X->data(), X->data(), tau, o, pushes);
+  }
+}
+
+void PyramidSolver::jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
+                           const PyramidSolveOptions& o, Vertices* Y) const {
+  std::vector<Vec3> shift, pushes;
+  if (o.push) shifts(X.data(), &shift, &pushes);
+  apply(verts, X.data(), Y->data(), tau, o, pushes);
+}
+
+int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o,
+                           int max_iterations, double limit, double* move,
+                           std::vector<double>* moves, double diag) const {
+  const int nf = static_cast<int>(free.size());
+  *move = 0;
+  if (nf == 0) return 0;
+  // Anderson acceleration (Walker & Ni 2011) of the sweep map G over the free coordinates:
+  // x+ = G(x) - dG gamma with gamma = argmin |f - dF gamma|, f = G(x) - x, over the last
+  // `window` differences. Only dot products and matrix-vector products: Eigen runs
+  // matrix-matrix products on OpenMP threads, which would fight the task pool's workers.
+  const int window = std::max(0, o.anderson);
+  const Eigen::Index len = 3 * static_cast<Eigen::Index>(nf);
+  Eigen::VectorXd x, g, f, f_prev, g_prev;
+  Eigen::MatrixXd dF, dG, gram;
+  if (window > 0) {
+    x.resize(len), g.resize(len);
+    dF.resize(len, window), dG.resize(len, window);
+    gram = Eigen::MatrixXd::Zero(window, window);
+  }
+  int stored = 0, head = 0, it = 0;
+  Vertices Y;
+  while (it < max_iterations) {
+    Y = *X;
+    sweep(&Y, tau, o);
+    // The move is the sweep's (the fixed-point residual), not the accelerated step's.
+    *move = max_move(Y, *X, free);
+    if (window > 0) {
+      for (int r = 0; r < nf; ++r) {
+        const int v = free[static_cast<size_t>(r)];
+        x.segment<3>(3 * r) = X->row(v).transpose();
+        g.segment<3>(3 * r) = Y.row(v).transpose();
+      }
+      f = g - x;
+      if (it > 0) {
+        dF.col(head) = f - f_prev;
+        dG.col(head) = g - g_prev;
+        stored = std::min(stored + 1, window);
+        for (int j = 0; j < stored; ++j)
+          gram(head, j) = gram(j, head) = dF.col(head).dot(dF.col(j));
+        head = (head + 1) % window;
+      }
+      f_prev = f;
+      g_prev = g;
+      if (stored > 0) {
+        Eigen::MatrixXd A = gram.topLeftCorner(stored, stored);
+        const Eigen::VectorXd rhs = dF.leftCols(stored).transpose() * f;
+        A.diagonal().array() += 1e-10 * A.diagonal().maxCoeff() + 1e-300;
+        const Eigen::VectorXd gamma = A.ldlt().solve(rhs);
+        if (gamma.allFinite()) {
+          g.noalias() -= dG.leftCols(stored) * gamma;
+          for (int r = 0; r < nf; ++r) {
+            Y.row(free[static_cast<size_t>(r)]) = g.segment<3>(3 * r).transpose();
+          }
+        }
+      }
+    }
+    X->swap(Y);
+    ++it;
+    if (!std::isfinite(*move)) throw std::runtime_error("pyramid deformer: the iteration diverged");
+    if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
+    if (*move < limit) break;
+  }
+  return it;
+}
+
+namespace {
+
+// The rest mesh moved by the similarity (rotation, uniform scale, translation) that best maps
+// the controls' rest positions onto their targets (Umeyama 1991). The sweeps converge slowly from
+// the rest pose, and for a rigid motion of all controls this start is the answer.
+Vertices similarity_start(const Vertices& rest, const std::vector<int>& control,
+                          const Vertices& target) {
+  const Eigen::Index k = target.rows();
+  Vec3 c0 = Vec3::Zero(), c1 = Vec3::Zero();
+  for (Eigen::Index j = 0; j < k; ++j) {
+    c0 += rest.row(control[static_cast<size_t>(j)]).transpose();
+    c1 += target.row(j).transpose();
+  }
+  c0 /= static_cast<double>(k);
+  c1 /= static_cast<double>(k);
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  double s0 = 0;
+  for (Eigen::Index j = 0; j < k; ++j) {
+    const Vec3 a = rest.row(control[static_cast<size_t>(j)]).transpose() - c0;
+    H += (target.row(j).transpose() - c1) * a.transpose();
+    s0 += a.squaredNorm();
+  }
+  Eigen::Matrix3d A = Eigen::Matrix3d::Identity();
+  if (s0 > 0 && H.allFinite() && H.norm() > 0) {
+    const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+    Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+    Eigen::Vector3d sig = svd.singularValues();
+    if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) D(2, 2) = -1, sig(2) *= -1;
+    // One or two controls (or collinear ones) leave the rotation about their line free: the fit
+    // then picks the smallest rotation, which is what the SVD's ordering gives.
+    A = (sig.sum() / s0) * (svd.matrixU() * D * svd.matrixV().transpose());
+  }
+  Vertices X(rest.rows(), 3);
+  for (Eigen::Index v = 0; v < rest.rows(); ++v) {
+    X.row(v) = (A * (rest.row(v).transpose() - c0) + c1).transpose();
+  }
+  return X;
+}
+
+}  // namespace
+
+struct PyramidDeformer::Impl : PyramidSolver {
+  using PyramidSolver::PyramidSolver;
+};
+
+PyramidDeformer::PyramidDeformer(const Vertices& vertices, const Faces& faces,
+                                 const std::vector<int>& control) {
+  validate_mesh(vertices, faces);
+  const int n = static_cast<int>(vertices.rows());
+  if (control.empty()) throw std::invalid_argument("control: expected at least one vertex");
+  std::vector<char> is_control(static_cast<size_t>(n), 0);
+  for (int c : control) {
+    if (c < 0 || c >= n) {
+      throw std::invalid_argument("control: vertex " + std::to_string(c) + " outside [0, " +
+                                  std::to_string(n) + ")");
+    }
+    if (is_control[static_cast<size_t>(c)]) {
+      throw std::invalid_argument("control: vertex " + std::to_string(c) + " given twice");
+    }
+    is_control[static_cast<size_t>(c)] = 1;
+  }
+  control_ = control;
+  diag_ = (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()).norm();
+  impl_ = std::make_unique<Impl>(vertices, faces, is_control);
+}
+
+PyramidDeformer::~PyramidDeformer() = default;
+
+const PyramidCoordinates& PyramidDeformer::coordinates() const { return (*impl_).coords; }
+int PyramidDeformer::num_vertices() const { return static_cast<int>((*impl_).rest.rows()); }
+int PyramidDeformer::num_colors() const { return static_cast<int>((*impl_).colors.size()); }
+int PyramidDeformer::num_passive() const { return (*impl_).num_passive; }
+Vertices PyramidDeformer::reconstruct(const Vertices& X, bool stretch) const {
+  const PyramidSolver& l0 = *impl_;
+  if (X.rows() != l0.rest.rows()) {
+    throw std::invalid_argument("positions: expected shape (" + std::to_string(l0.rest.rows()) +
+                                ",3)");
+  }
+  if (!X.allFinite()) throw std::invalid_argument("positions: contains NaN or infinity");
+  const ParkWorkersOnExit park;
+  Vertices Y = X;
+  parallel_ranges(static_cast<int>(X.rows()), kMinChunk, chunks(), [&](int b, int e) {
+    for (int v = b; v < e; ++v) Y.row(v) = l0.place(v, X.data(), stretch).transpose();
+  });
+  return Y;
+}
+
+Vertices PyramidDeformer::deform(const Vertices& control_positions,
+                                 const PyramidSolveOptions& options) {
+  const ParkWorkersOnExit park;
+  const PyramidSolver& level = *impl_;
+  const int n = num_vertices();
+  const int k = static_cast<int>(control_.size());
+  if (control_positions.rows() != k) {
+    throw std::invalid_argument("control_positions: expected shape (" + std::to_string(k) +
+                                ",3), got " + std::to_string(control_positions.rows()) + " rows");
+  }
+  if (!control_positions.allFinite()) {
+    throw std::invalid_argument("control_positions: contains NaN or infinity");
+  }
+  if (options.max_iterations < 0) throw std::invalid_argument("iterations: expected >= 0");
+  if (!(options.tol >= 0) || !std::isfinite(options.tol)) {
+    throw std::invalid_argument("tol: expected a finite value >= 0");
+  }
+  if (options.anderson < 0) throw std::invalid_argument("anderson: expected >= 0");
+  Vertices X = level.rest;
+  if (options.initial) {
+    if (options.initial->rows() != n) {
+      throw std::invalid_argument("initial: expected shape (" + std::to_string(n) + ",3)");
+    }
+    if (!options.initial->allFinite()) {
+      throw std::invalid_argument("initial: contains NaN or infinity");
+    }
+    X = *options.initial;
+  } else {
+    X = similarity_start(level.rest, control_, control_positions);
+  }
+  for (int j = 0; j < k; ++j) X.row(control_[static_cast<size_t>(j)]) = control_positions.row(j);
+  const double limit = options.tol * diag_;
+  last_moves_.clear();
+  last_iterations_ = 0;
+  last_move_ = std::numeric_limits<double>::quiet_NaN();
+  if (options.max_iterations == 0) return X;
+
+  double move = 0;
+  last_iterations_ = level.iterate(&X, nullptr, options, options.max_iterations, limit, &move,
+                                   options.record_moves ? &last_moves_ : nullptr, diag_);
+  last_move_ = level.free.empty() ? 0.0 : (diag_ > 0 ? move / diag_ : move);
+  return X;
+}
+
+}  // namespace matdeform
