@@ -14,8 +14,10 @@ ensure_debian_blender || exit 2
 ensure_bpy_venv .venv-bpy "$BPY_VERSION" || exit 2
 
 # build the wheel and both zips; the tests import the core from the vendored copy
-scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
-  || { cat /tmp/md_build_addon.log; echo "build_addon.sh failed" >&2; exit 2; }
+build_log=$(mktemp)  # not a fixed name: other checkouts may run this at the same time
+scripts/build_addon.sh >"$build_log" 2>&1 \
+  || { cat "$build_log"; echo "build_addon.sh failed" >&2; exit 2; }
+rm -f "$build_log"
 export MD_TEST_SYS_PATH="$ROOT/build/addon/legacy/material_deform/_vendor"
 
 status=0
