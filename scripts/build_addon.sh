@@ -68,7 +68,9 @@ else
   "$PY" -c "import scikit_build_core, pybind11" 2>/dev/null && iso=(--no-build-isolation)
   "$PY" -m pip wheel -q --no-deps "${iso[@]}" -w "$BUILD/wheels" "$ROOT"
 fi
-if [[ "${MD_SYSTEM_LIBS:-0}" != 1 ]] && ! compgen -G "$BUILD/wheels/*manylinux*.whl" >/dev/null; then
+# Only a plain linux_* wheel is repaired here: a manylinux one already is, and wheels of other
+# platforms (MD_WHEEL) are bundled by their own tools (delvewheel, delocate: docs/addon.md).
+if [[ "${MD_SYSTEM_LIBS:-0}" != 1 ]] && compgen -G "$BUILD/wheels/*-linux_*.whl" >/dev/null; then
   bundle_libs "$BUILD/wheels"
 fi
 WHEEL="$(ls "$BUILD"/wheels/matdeform-*.whl | head -n1)"
@@ -113,8 +115,23 @@ ext = build / "extension"
 shutil.copytree(src, ext, ignore=skip)
 (ext / "wheels").mkdir()
 shutil.copy(wheel, ext / "wheels" / wheel.name)
+# platforms: what the wheel is built for, and nothing else (Blender refuses the others)
+arch = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64", "arm64": "arm64"}
+tag = r"(?:many)?linux(?:_\d+_\d+|1|2010|2014)?_(\w+)|win_(\w+)|macosx_\d+_\d+_(\w+)"
+platforms = set()
+for plat in wheel.stem.split("-")[-1].split("."):
+    m = re.fullmatch(tag, plat)
+    assert m, f"cannot tell the Blender platform of wheel tag {plat}"
+    if m[1] or m[2]:
+        platforms.add(("linux-" if m[1] else "windows-") + arch[m[1] or m[2]])
+    else:
+        both = m[3] == "universal2"
+        platforms |= {"macos-x64", "macos-arm64"} if both else {"macos-" + arch[m[3]]}
 manifest = (ext / "blender_manifest.toml").read_text()
 manifest = re.sub(r"^wheels = .*$", f'wheels = ["./wheels/{wheel.name}"]', manifest, flags=re.M)
+listed = ", ".join(f'"{p}"' for p in sorted(platforms))
+manifest = re.sub(r"^platforms = .*$", f"platforms = [{listed}]", manifest, flags=re.M)
+print(f"extension platforms: {sorted(platforms)}")
 (ext / "blender_manifest.toml").write_text(manifest)
 
 out = root / "dist" / f"material_deform-{version}-legacy.zip"
