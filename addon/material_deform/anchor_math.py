@@ -77,6 +77,21 @@ def affine_inverse(m) -> np.ndarray:
     return out
 
 
+def rigid_fit(rest, posed) -> np.ndarray:
+    """(4,4) rotation + translation that best maps points ``rest`` (n,3) onto ``posed`` (n,3)
+    in the least-squares sense (Kabsch; no reflection)."""
+    a = np.asarray(rest, dtype=np.float64)
+    b = np.asarray(posed, dtype=np.float64)
+    ca, cb = a.mean(axis=0), b.mean(axis=0)
+    u, _s, vt = np.linalg.svd((a - ca).T @ (b - cb))
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    out = np.eye(4)
+    out[:3, :3] = rot
+    out[:3, 3] = cb - rot @ ca
+    return out
+
+
 def anchor_polygons(vertex_in_group, loop_vert, loop_poly, n_polys: int) -> np.ndarray:
     """Boolean mask of polygons whose vertices are ALL in the group."""
     member = np.asarray(vertex_in_group, dtype=bool)[np.asarray(loop_vert)]

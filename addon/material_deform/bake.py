@@ -1,31 +1,122 @@
-"""Bake (one keyframed shape key per frame) and rebuilding the solvers of a loaded scene."""
+"""Bakes (one keyframed shape key per frame, or a .pc2 point cache read by a Mesh Cache
+modifier), clearing a bake, and rebuilding the solvers of a loaded scene."""
 
 from __future__ import annotations
 
+import os
+
 from . import bridge, session
 from .model import BindError, settings
+from .pointcache import PC2Writer
+
+
+def state(obj) -> str:
+    """What bake drives the mesh ('' when none), as the panel says it."""
+    mod = bridge.cache_modifier(obj)
+    if mod is not None:
+        return f"Baked to {os.path.basename(mod.filepath) or 'a point cache'}"
+    n = len(bridge.bake_key_names(obj))
+    return f"Baked {n} frame(s) to shape keys" if n else ""
+
+
+def _solved_frames(obj, scene, frames, progress):
+    """(frame, positions (n,3)) for every frame, each solved to convergence; iterative methods
+    warm-start from the previous frame. The scene's frame is restored afterwards."""
+    progress = progress or (lambda _f, _t: None)
+    session.entry_for(obj, scene)
+    old = scene.frame_current
+    try:
+        for i, f in enumerate(frames):
+            progress(i / len(frames), f"Material Deform: baking frame {f} ({i + 1}/{len(frames)})")
+            bridge.frame_set(scene, f)
+            dg = bridge.evaluated_depsgraph_from_scene(scene)
+            yield f, session.compute(obj, scene, dg, budget=None)
+    finally:
+        bridge.frame_set(scene, old)
+
+
+def _hand_over(obj) -> None:
+    """The bake drives the mesh now: Live off and the live output at 0."""
+    s = settings(obj)
+    s.live = False
+    bridge.set_output_value(obj, 0.0, s.output_key_name or bridge.OUTPUT_KEY)
 
 
 def bake(obj, scene, frames, progress=None) -> list[str]:
-    """Write one keyframed shape key per frame; turns Live off and mutes the live output. Each
-    frame is solved to convergence; iterative methods warm-start from the previous frame."""
-    progress = progress or (lambda _f, _t: None)
-    session.entry_for(obj, scene)
-    s = settings(obj)
-    names = []
+    """Write one keyframed shape key per frame (replacing an earlier bake); turns Live off and
+    mutes the live output. Every frame is solved before anything is written, so an error
+    leaves the object as it was."""
     frames = list(frames)
-    old = scene.frame_current
-    s.live = False
+    s = settings(obj)
+    live, s.live = s.live, False  # our own frame changes must not write the live key
     try:
-        for i, f in enumerate(frames):
-            bridge.frame_set(scene, f)
-            dg = bridge.evaluated_depsgraph_from_scene(scene)
-            names.append(bridge.bake_key(obj, f, session.compute(obj, scene, dg, budget=None)))
-            progress((i + 1) / len(frames), f"Material Deform: baking frame {f}")
-    finally:
-        bridge.frame_set(scene, old)
-    bridge.set_output_value(obj, 0.0, s.output_key_name or bridge.OUTPUT_KEY)
+        solved = [(f, x.astype("float32")) for f, x in _solved_frames(obj, scene, frames, progress)]
+    except BaseException:
+        s.live = live
+        raise
+    clear(obj, scene, restore_live=False)
+    names = [bridge.bake_key(obj, f, x) for f, x in solved]
+    _hand_over(obj)
     return names
+
+
+def cache_path(obj, path: str) -> tuple[str, str]:
+    """(path as stored in the modifier, absolute path) of the point cache; '' means
+    '//<object name>.pc2'. A relative path needs a saved .blend."""
+    path = path or f"//{bridge.clean_name(obj.name)}.pc2"
+    if path.startswith("//") and not bridge.blend_saved():
+        raise BindError(
+            f"Save the .blend first: the cache path '{path}' is relative to it (or pick an "
+            "absolute File)"
+        )
+    full = os.path.normpath(bridge.abspath(path))
+    if not os.path.splitext(full)[1]:
+        path, full = path + ".pc2", full + ".pc2"
+    folder = os.path.dirname(full)
+    if folder and not os.path.isdir(folder):
+        raise BindError(f"Folder '{folder}' does not exist")
+    return path, full
+
+
+def bake_point_cache(obj, scene, frames, path: str = "", progress=None) -> str:
+    """Write the frames to a .pc2 file and read it back through a Mesh Cache modifier at the
+    top of the stack (replacing an earlier bake); turns Live off. Returns the absolute path."""
+    frames = list(frames)
+    stored, full = cache_path(obj, path)
+    n = len(obj.data.vertices)
+    s = settings(obj)
+    live, s.live = s.live, False
+    try:
+        with PC2Writer(full, n, len(frames), frames[0]) as out:
+            for _f, x in _solved_frames(obj, scene, frames, progress):
+                out.add(x)
+    except OSError as exc:
+        s.live = live
+        raise BindError(f"Cannot write '{full}': {exc.strerror or exc}") from exc
+    except BaseException:
+        s.live = live
+        raise
+    clear(obj, scene, restore_live=False)
+    bridge.add_cache_modifier(obj, stored, frames[0])
+    _hand_over(obj)
+    return full
+
+
+def clear(obj, scene, restore_live: bool = True) -> bool:
+    """Remove the baked shape keys with their keyframes and the point-cache modifier (the
+    file stays on disk). ``restore_live``: turn Live on again and pose the mesh live."""
+    removed = bridge.remove_bake_keys(obj) > 0
+    removed |= bridge.remove_cache_modifier(obj)
+    if restore_live:
+        s = settings(obj)
+        s.live = True
+        bridge.set_output_value(obj, 1.0, s.output_key_name or bridge.OUTPUT_KEY)
+        if s.bound:
+            try:
+                session.apply(obj, scene, force=True)
+            except BindError as exc:
+                session.record_failure(obj, str(exc))
+    return removed
 
 
 def prepare_scene(scene) -> None:

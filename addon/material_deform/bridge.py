@@ -277,38 +277,89 @@ def shape_key_positions(obj, name) -> np.ndarray:
     return _get(kb.data, "co", len(kb.data), np.float32, 3).astype(np.float64)
 
 
-def write_face_colors(mesh, name, face_rgba, loop_poly) -> None:
-    """Per-face colours as a corner colour attribute (colour attributes have no face domain),
-    made active so Attribute viewport shading shows it."""
+def active_color_name(mesh) -> str:
+    attr = getattr(mesh.color_attributes, "active_color", None)
+    return "" if attr is None else attr.name
+
+
+def set_active_color(mesh, name) -> bool:
+    """Make colour attribute ``name`` the active one (the one Vertex Paint paints and Solid >
+    Attribute shading shows). False if there is none of that name."""
     attr = mesh.color_attributes.get(name)
     if attr is None:
-        attr = mesh.color_attributes.new(name, "BYTE_COLOR", "CORNER")
-    rgba = np.asarray(face_rgba, dtype=np.float32)[loop_poly]
-    field = "color_srgb" if len(attr.data) and hasattr(attr.data[0], "color_srgb") else "color"
-    attr.data.foreach_set(field, rgba.ravel())
+        return False
     with contextlib.suppress(AttributeError, TypeError):
         mesh.color_attributes.active_color = attr
     with contextlib.suppress(AttributeError, TypeError):
         mesh.attributes.active_color = attr
+    return True
+
+
+def write_corner_colors(mesh, name, corner_rgba) -> None:
+    """Colours (loops,4) as a corner colour attribute (created if missing), made active so
+    Attribute viewport shading shows it."""
+    attr = mesh.color_attributes.get(name)
+    if attr is None:
+        attr = mesh.color_attributes.new(name, "BYTE_COLOR", "CORNER")
+    rgba = np.asarray(corner_rgba, dtype=np.float32)
+    field = "color_srgb" if len(attr.data) and hasattr(attr.data[0], "color_srgb") else "color"
+    attr.data.foreach_set(field, rgba.ravel())
+    set_active_color(mesh, name)
     mesh.update()
 
 
-def show_attribute_shading(context) -> bool:
-    """Switch open 3D viewports to Solid + Attribute colour. False if there is no viewport
-    (background mode)."""
-    done = False
-    screen = getattr(context, "screen", None)
-    if screen is None:
+def remove_attribute(mesh, name) -> bool:
+    attr = mesh.attributes.get(name)
+    if attr is None:
         return False
-    for area in screen.areas:
-        if area.type != "VIEW_3D":
-            continue
-        for space in area.spaces:
-            if space.type == "VIEW_3D":
-                space.shading.type = "SOLID"
-                space.shading.color_type = "VERTEX"
-                done = True
-    return done
+    mesh.attributes.remove(attr)
+    mesh.update()
+    return True
+
+
+def create_color_attribute(mesh, name, rgba=(0.0, 0.0, 0.0, 1.0)) -> None:
+    """A point colour attribute filled with ``rgba``, made active for Vertex Paint."""
+    attr = mesh.color_attributes.new(name, "FLOAT_COLOR", "POINT")
+    if attr is None:
+        raise BindError(f"Cannot create color attribute '{name}'")
+    attr.data.foreach_set("color", np.tile(np.asarray(rgba, np.float32), len(attr.data)))
+    set_active_color(mesh, name)
+    mesh.update()
+
+
+def _view3d_spaces(context):
+    wm = getattr(context, "window_manager", None)
+    for win in wm.windows if wm is not None else ():
+        for area in win.screen.areas:
+            if area.type == "VIEW_3D":
+                for space in area.spaces:
+                    if space.type == "VIEW_3D":
+                        yield space
+
+
+def viewport_shading(context) -> str:
+    """'TYPE COLOR_TYPE' of the first 3D viewport, '' if there is none."""
+    for space in _view3d_spaces(context):
+        return f"{space.shading.type} {space.shading.color_type}"
+    return ""
+
+
+def set_viewport_shading(context, shading: str) -> int:
+    """Set every 3D viewport to 'TYPE COLOR_TYPE'; returns how many were set."""
+    kind, _, color = shading.partition(" ")
+    n = 0
+    for space in _view3d_spaces(context):
+        with contextlib.suppress(TypeError, ValueError):
+            space.shading.type = kind
+            if color:
+                space.shading.color_type = color
+            n += 1
+    return n
+
+
+def show_attribute_shading(context) -> bool:
+    """Switch open 3D viewports to Solid + Attribute colour. False if there is none."""
+    return set_viewport_shading(context, "SOLID VERTEX") > 0
 
 
 # --- selection, groups, Empties ---------------------------------------------------------------
@@ -368,6 +419,20 @@ def set_vertex_group(obj, name, vertex_indices):
     return vg.name
 
 
+def ensure_vertex_group(obj, name) -> bool:
+    """Create an empty vertex group ``name`` if there is none; True if created."""
+    if obj.vertex_groups.get(name) is not None:
+        return False
+    obj.vertex_groups.new(name=name)
+    return True
+
+
+def set_active_vertex_group(obj, name) -> None:
+    vg = obj.vertex_groups.get(name)
+    if vg is not None:
+        obj.vertex_groups.active_index = vg.index
+
+
 def unique_group_name(obj, base) -> str:
     name, i = base, 1
     while obj.vertex_groups.get(name) is not None:
@@ -393,16 +458,28 @@ def select_polygons_edit(obj, mask) -> None:
 
 def create_empty(context, name, location, normal, size, near_obj):
     """Empty at ``location`` (world) with its Z axis along ``normal`` (world), linked into the
-    mesh object's first collection."""
+    mesh object's first collection and parented to the mesh object (keeping that world
+    transform), so moving the object carries its anchors along."""
     empty = bpy.data.objects.new(name, None)
     empty.empty_display_type = "ARROWS"
     empty.empty_display_size = max(float(size), 1e-3)
     n = Vector(normal)
     rot = n.to_track_quat("Z", "Y").to_matrix().to_4x4() if n.length > 1e-12 else Matrix()
-    empty.matrix_world = Matrix.Translation(Vector(location)) @ rot
+    m = Matrix.Translation(Vector(location)) @ rot
     coll = near_obj.users_collection[0] if near_obj.users_collection else context.collection
     coll.objects.link(empty)
+    parent = near_obj.matrix_world
+    if abs(parent.to_3x3().determinant()) > 1e-12:  # an object scaled to zero cannot parent
+        empty.parent = near_obj
+        empty.matrix_parent_inverse = parent.inverted()
+    empty.matrix_basis = m
+    empty.matrix_world = m  # right away, before the depsgraph evaluates the parenting
     return empty
+
+
+def set_world_matrix(obj, m) -> None:
+    """Place ``obj`` at world matrix ``m`` (4,4), parented or not."""
+    obj.matrix_world = Matrix([list(r) for r in np.asarray(m, dtype=np.float64)])
 
 
 def world_matrix(obj, depsgraph=None):
@@ -543,6 +620,100 @@ def set_output_value(obj, value: float, name=OUTPUT_KEY) -> None:
         kb.value = value
 
 
+def _fcurves(id_data):
+    """The F-curves animating ``id_data`` (slotted actions in 4.4+), None without any."""
+    ad = id_data.animation_data
+    if ad is None or ad.action is None:
+        return None
+    slot = getattr(ad, "action_slot", None)
+    if slot is not None:
+        try:
+            from bpy_extras.anim_utils import action_get_channelbag_for_slot
+        except ImportError:
+            pass
+        else:
+            bag = action_get_channelbag_for_slot(ad.action, slot)
+            return None if bag is None else bag.fcurves
+    return getattr(ad.action, "fcurves", None)
+
+
+def bake_key_names(obj) -> list[str]:
+    keys = obj.data.shape_keys
+    if keys is None:
+        return []
+    return [kb.name for kb in keys.key_blocks if kb.name.startswith(BAKE_PREFIX)]
+
+
+def remove_bake_keys(obj) -> int:
+    """Remove the baked shape keys and their keyframes; returns how many keys went."""
+    names = bake_key_names(obj)
+    if not names:
+        return 0
+    keys = obj.data.shape_keys
+    fcurves = _fcurves(keys)
+    if fcurves is not None:
+        paths = {f'key_blocks["{n}"].value' for n in names}
+        for fc in [fc for fc in fcurves if fc.data_path in paths]:
+            fcurves.remove(fc)
+        if len(fcurves) == 0:
+            keys.animation_data.action = None  # nothing else animated: no empty action left
+    for n in names:
+        obj.shape_key_remove(keys.key_blocks[n])
+    obj.active_shape_key_index = 0
+    return len(names)
+
+
+CACHE_MODIFIER = "Material Deform Cache"
+
+
+def cache_modifier(obj):
+    mod = obj.modifiers.get(CACHE_MODIFIER)
+    return mod if mod is not None and mod.type == "MESH_CACHE" else None
+
+
+def add_cache_modifier(obj, filepath: str, frame_start: int):
+    """A Mesh Cache modifier at the top of the stack reading ``filepath`` (.pc2), frame
+    ``frame_start`` = the file's first sample; it replaces the shape-key result exactly."""
+    mod = cache_modifier(obj) or obj.modifiers.new(CACHE_MODIFIER, "MESH_CACHE")
+    mod.cache_format = "PC2"
+    mod.filepath = filepath
+    mod.play_mode = "SCENE"
+    mod.time_mode = "FRAME"
+    mod.frame_start = float(frame_start)
+    mod.frame_scale = 1.0
+    mod.deform_mode = "OVERWRITE"
+    mod.interpolation = "LINEAR"
+    mod.forward_axis, mod.up_axis = "POS_Y", "POS_Z"  # the file is in the mesh's own axes
+    index = list(obj.modifiers).index(mod)
+    if index:
+        if hasattr(obj.modifiers, "move"):  # 4.0+
+            obj.modifiers.move(index, 0)
+        else:
+            with bpy.context.temp_override(object=obj, active_object=obj):
+                bpy.ops.object.modifier_move_to_index(modifier=mod.name, index=0)
+    return mod
+
+
+def remove_cache_modifier(obj) -> bool:
+    mod = cache_modifier(obj)
+    if mod is None:
+        return False
+    obj.modifiers.remove(mod)
+    return True
+
+
+def abspath(path: str) -> str:
+    return bpy.path.abspath(path)
+
+
+def clean_name(name: str) -> str:
+    return bpy.path.clean_name(name)
+
+
+def blend_saved() -> bool:
+    return bool(bpy.data.filepath)
+
+
 def frame_set(scene, frame) -> None:
     scene.frame_set(frame)
 
@@ -552,6 +723,15 @@ def status(context, text) -> None:
     if ws is not None:
         with contextlib.suppress(Exception):
             ws.status_text_set(text)
+
+
+def redraw(context) -> None:
+    """Draw the window now, so the status text set inside a long operator shows before the
+    operator returns (Blender only redraws between events). Nothing in background mode."""
+    if bpy.app.background or getattr(context, "window", None) is None:
+        return
+    with contextlib.suppress(Exception):
+        bpy.ops.wm.redraw_timer(type="DRAW_WIN_SWAP", iterations=1)
 
 
 def evaluated_depsgraph_from_scene(scene):

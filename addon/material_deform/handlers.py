@@ -7,7 +7,7 @@ from __future__ import annotations
 import bpy
 from bpy.app.handlers import persistent
 
-from . import bake, session
+from . import bake, session, stiffness
 
 _busy = False  # our own shape-key write triggers another depsgraph update
 
@@ -38,8 +38,34 @@ def _keep_settling():
     return _SETTLE_INTERVAL if session.unsettled() else None
 
 
+def _guard_paint():
+    """Vertex Paint must never paint into the stiffness display (Show makes it the active
+    colour attribute so Solid > Attribute shading shows it)."""
+    obj = getattr(bpy.context, "object", None)
+    if obj is None or obj.type != "MESH" or obj.mode != "VERTEX_PAINT":
+        return
+    try:
+        stiffness.keep_display_out_of_paint(obj)
+    except Exception as exc:  # a handler must never take Blender down
+        print(f"Material Deform: could not switch the paint layer of '{obj.name}': {exc}")
+
+
+_MSGBUS_OWNER = object()
+
+
+def _subscribe():
+    """Entering Vertex Paint is seen at once in the GUI (the depsgraph handler also covers
+    scripts and background runs)."""
+    bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
+    bpy.msgbus.subscribe_rna(
+        key=(bpy.types.Object, "mode"), owner=_MSGBUS_OWNER, args=(), notify=_guard_paint
+    )
+
+
 @persistent
 def on_depsgraph_update(scene, depsgraph=None):
+    if not _busy:
+        _guard_paint()
     _run(scene, None)
 
 
@@ -54,6 +80,7 @@ def on_load(_filepath=None, *_args):
     # fingerprints still match) but do not deform yet: world matrices are not evaluated during
     # load_post, the first depsgraph update after loading does that.
     session.clear_cache()
+    _subscribe()  # loading a file clears the subscriptions
     scene = bpy.context.scene
     if scene is not None:
         bake.prepare_scene(scene)
@@ -82,6 +109,7 @@ def register():
         lst = getattr(bpy.app.handlers, name)
         if fn not in lst:
             lst.append(fn)
+    _subscribe()
 
 
 def unregister():
@@ -91,4 +119,5 @@ def unregister():
             lst.remove(fn)
     if bpy.app.timers.is_registered(_keep_settling):
         bpy.app.timers.unregister(_keep_settling)
+    bpy.msgbus.clear_by_owner(_MSGBUS_OWNER)
     session.clear_cache()

@@ -1,34 +1,57 @@
-"""Operators. Each one validates first and reports a clear error without touching the mesh."""
+"""Operators. Each one validates first and reports a clear error without touching the mesh.
+
+Ids: what acts on the object (Bind, Rebind, Update, Settle, Reset, Reset Empties, the bakes) is
+``object.material_deform_*`` and also works with one of the object's anchor Empties selected;
+what works on mesh data or in Edit Mode is ``mesh.material_deform_*``. The ``mesh.`` ids the
+object actions had in 0.1 stay as hidden aliases for one release, so scripts keep working."""
 
 from __future__ import annotations
 
+import time
+
 import bpy
-from bpy.props import EnumProperty, IntProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, IntProperty, StringProperty
 
 from . import bake, bridge, learn, session, stiffness
 from .anchor_math import anchor_polygons
 from .model import BindError
 from .stiffness_map import loop_polygon_index
 
-
-def _mesh_object(context):
-    obj = context.object
-    return obj if bridge.is_mesh(obj) else None
+# '//' paths are relative to the .blend (4.5+ warns unless a path property says it takes them)
+_BLEND_RELATIVE = {"PATH_SUPPORTS_BLEND_RELATIVE"} if bpy.app.version >= (4, 5, 0) else set()
 
 
-class _MeshOperator:
+def _poll_message(cls, text) -> None:
+    if hasattr(cls, "poll_message_set"):  # Blender 3.0+
+        cls.poll_message_set(text)
+
+
+class _Operator:
     """Base of every operator: ``run(context, obj)`` does the work and raises BindError for
     anything the user has to fix, which is reported as an error and cancels the operator."""
 
     bl_options = {"REGISTER", "UNDO"}
 
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        if cls.__doc__ and "bl_description" not in cls.__dict__:  # tooltips on one line
+            cls.bl_description = " ".join(cls.__doc__.split())
+
+    @classmethod
+    def target(cls, context):
+        obj = context.object
+        return obj if bridge.is_mesh(obj) else None
+
     @classmethod
     def poll(cls, context):
-        return _mesh_object(context) is not None
+        if cls.target(context) is not None:
+            return True
+        _poll_message(cls, "Select a mesh object")
+        return False
 
     def execute(self, context):
         try:
-            return self.run(context, _mesh_object(context))
+            return self.run(context, self.target(context))
         except BindError as exc:
             self.report({"ERROR"}, str(exc))
             return {"CANCELLED"}
@@ -37,12 +60,39 @@ class _MeshOperator:
         raise NotImplementedError
 
 
+class _ObjectOperator(_Operator):
+    """Acts on the mesh object, found also from one of its anchor Empties (posing)."""
+
+    @classmethod
+    def target(cls, context):
+        obj = context.object
+        if bridge.is_mesh(obj):
+            return obj
+        return session.owner_of(obj, context.scene)
+
+    @classmethod
+    def poll(cls, context):
+        if cls.target(context) is not None:
+            return True
+        _poll_message(cls, "Select a mesh object or one of its anchor Empties")
+        return False
+
+
+def _to_object_mode(context, obj) -> None:
+    if obj.mode != "OBJECT" and context.view_layer.objects.active == obj:
+        bpy.ops.object.mode_set(mode="OBJECT")
+
+
 class _Progress:
-    """wm.progress_* plus status-bar text; safe in background mode."""
+    """wm.progress_* (the number in the mouse cursor) plus status-bar text, with the window
+    redrawn now and then so the text shows while the operator runs; safe in background mode."""
+
+    REDRAW_EVERY = 0.1  # s: a redraw costs a few ms, a bake of a small mesh a few ms a frame
 
     def __init__(self, context):
         self.context = context
         self.wm = context.window_manager
+        self._drawn = None
 
     def __enter__(self):
         self.wm.progress_begin(0, 100)
@@ -51,6 +101,10 @@ class _Progress:
     def __call__(self, fraction, text):
         self.wm.progress_update(int(100 * fraction))
         bridge.status(self.context, text or None)
+        now = time.perf_counter()
+        if text and (self._drawn is None or now - self._drawn > self.REDRAW_EVERY):
+            bridge.redraw(self.context)
+            self._drawn = now
 
     def __exit__(self, *_exc):
         self.wm.progress_end()
@@ -58,9 +112,12 @@ class _Progress:
         return False
 
 
-class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Operator):
+# --- stiffness --------------------------------------------------------------------------------
+
+
+class MESH_OT_material_deform_stiffness_from_paint(_Operator, bpy.types.Operator):
     """Convert the painted vertex group / color attribute into per-face shear and per-edge
-    bending stiffness attributes (log scale: 0 = flexible, 1 = stiff)"""
+    bending stiffness attributes (log scale: paint 0 = Softest, 1 = stiff)"""
 
     bl_idname = "mesh.material_deform_stiffness_from_paint"
     bl_label = "Stiffness from Paint"
@@ -74,7 +131,22 @@ class MESH_OT_material_deform_stiffness_from_paint(_MeshOperator, bpy.types.Oper
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator):
+class MESH_OT_material_deform_add_paint_layer(_Operator, bpy.types.Operator):
+    """Create the stiffness paint layer if it is missing (the vertex group of the Paint Source,
+    or its color attribute, black = flexible) and make it the one Weight / Vertex Paint paints"""
+
+    bl_idname = "mesh.material_deform_add_paint_layer"
+    bl_label = "Create Paint Layer"
+
+    def run(self, context, obj):
+        with bridge.object_mode(context, obj):
+            names, created = stiffness.add_paint_layer(obj)
+        verb = "Created" if created else "Already there, made active:"
+        self.report({"INFO"}, f"{verb} {', '.join(names)}")
+        return {"FINISHED"}
+
+
+class MESH_OT_material_deform_learn_stiffness(_Operator, bpy.types.Operator):
     """Learn bending and shear stiffness from the shape keys (example poses of the Basis): all
     unmuted keys whose name contains the Keys filter. Writes the stiffness attributes and the
     paint vertex groups, so you can refine the result by painting"""
@@ -94,33 +166,81 @@ class MESH_OT_material_deform_learn_stiffness(_MeshOperator, bpy.types.Operator)
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_show_stiffness(_MeshOperator, bpy.types.Operator):
-    """Show the stored stiffness as colours (blue = flexible, red = stiff)"""
+class MESH_OT_material_deform_show_stiffness(_Operator, bpy.types.Operator):
+    """Colour the mesh by the stored stiffness chosen in Show (blue = flexible, red = stiff) and
+    switch the viewports to Solid > Attribute shading; Hide puts both back"""
 
     bl_idname = "mesh.material_deform_show_stiffness"
     bl_label = "Show Stiffness"
 
+    field: EnumProperty(
+        name="Field",
+        items=(
+            ("PANEL", "As in the Panel", "The field chosen in the panel's Show menu"),
+            ("SHEAR", "Shear", ""),
+            ("BEND", "Bend", ""),
+            ("BEND_X", "Bend X", ""),
+            ("BEND_Y", "Bend Y", ""),
+            ("BEND_Z", "Bend Z", ""),
+        ),
+        default="PANEL",
+        options={"SKIP_SAVE"},
+    )
+
     def run(self, context, obj):
+        s = obj.material_deform
+        field = (s.display_field or "SHEAR") if self.field == "PANEL" else self.field
         with bridge.object_mode(context, obj):
-            stiffness.show_stiffness(obj)
+            stiffness.show_stiffness(obj, field)
+        if not s.display_prev_shading:  # keep what was there before the first Show
+            s.display_prev_shading = bridge.viewport_shading(context)
         bridge.show_attribute_shading(context)
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_add_anchor(_MeshOperator, bpy.types.Operator):
-    """Make the selected faces an anchor: a vertex group plus an Empty at their centroid,
-    oriented along their average normal"""
+class MESH_OT_material_deform_hide_stiffness(_Operator, bpy.types.Operator):
+    """Remove the stiffness colours and give the viewports their shading from before Show"""
+
+    bl_idname = "mesh.material_deform_hide_stiffness"
+    bl_label = "Hide Stiffness"
+
+    def run(self, context, obj):
+        s = obj.material_deform
+        with bridge.object_mode(context, obj):
+            stiffness.hide_stiffness(obj)
+        if s.display_prev_shading:
+            bridge.set_viewport_shading(context, s.display_prev_shading)
+        s.display_prev_shading = ""
+        return {"FINISHED"}
+
+
+# --- anchors (mesh data, Edit Mode) -------------------------------------------------------------
+
+
+class MESH_OT_material_deform_add_anchor(_Operator, bpy.types.Operator):
+    """Make the faces selected in Edit Mode an anchor: a vertex group plus an Empty at their
+    centroid, oriented along their average normal and parented to the mesh object"""
 
     bl_idname = "mesh.material_deform_add_anchor"
     bl_label = "Add Anchor"
 
     mode: EnumProperty(
         name="Mode",
-        items=(("POSITION", "Follow Empty", ""), ("ROTATION", "Rotation + Scale", "")),
+        description="How the anchor faces follow their Empty",
+        items=(
+            ("POSITION", "Follow Empty", "The faces follow the Empty's full transform"),
+            ("ROTATION", "Rotation + Scale", "Only the Empty's rotation and scale are used"),
+        ),
         default="POSITION",
     )
 
     def run(self, context, obj):
+        if obj.mode != "EDIT":
+            # in Object Mode the faces last selected in Edit Mode would be used unseen
+            raise BindError(
+                "Add Anchor uses the faces selected in Edit Mode: press Tab, select the anchor "
+                "faces, then Add Anchor"
+            )
         s = obj.material_deform
         with bridge.object_mode(context, obj):
             mesh = obj.data
@@ -138,12 +258,13 @@ class MESH_OT_material_deform_add_anchor(_MeshOperator, bpy.types.Operator):
             anc.empty = empty
             anc.mode = self.mode
             s.active_anchor_index = len(s.anchors) - 1
+            session.place_new_anchor(obj, empty, verts)
         if s.bound:
-            self.report({"WARNING"}, "Anchor added: click Bind again to use it")
+            self.report({"WARNING"}, "Anchor added: click Rebind to use it")
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_remove_anchor(_MeshOperator, bpy.types.Operator):
+class MESH_OT_material_deform_remove_anchor(_Operator, bpy.types.Operator):
     """Remove the active anchor (its vertex group and Empty are kept)"""
 
     bl_idname = "mesh.material_deform_remove_anchor"
@@ -161,8 +282,8 @@ class MESH_OT_material_deform_remove_anchor(_MeshOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_select_anchor(_MeshOperator, bpy.types.Operator):
-    """Select the faces of the active anchor (and its Empty)"""
+class MESH_OT_material_deform_select_anchor(_Operator, bpy.types.Operator):
+    """Select the faces of the active anchor in Edit Mode"""
 
     bl_idname = "mesh.material_deform_select_anchor"
     bl_label = "Select Anchor Faces"
@@ -185,87 +306,7 @@ class MESH_OT_material_deform_select_anchor(_MeshOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
-class MESH_OT_material_deform_bind(_MeshOperator, bpy.types.Operator):
-    """Precompute the material-aware deformation for the current anchors and stiffness"""
-
-    bl_idname = "mesh.material_deform_bind"
-    bl_label = "Bind"
-
-    def run(self, context, obj):
-        if obj.mode != "OBJECT":
-            bpy.ops.object.mode_set(mode="OBJECT")
-        with _Progress(context) as progress:
-            entry = session.bind(obj, context.scene, progress)
-        self.report({"INFO"}, f"Bound {len(entry.rest)} vertices, {entry.n_anchors} anchor(s)")
-        return {"FINISHED"}
-
-
-class MESH_OT_material_deform_update(_MeshOperator, bpy.types.Operator):
-    """Recompute the deformation from the current Empty transforms now"""
-
-    bl_idname = "mesh.material_deform_update"
-    bl_label = "Update"
-
-    def run(self, context, obj):
-        if session.full_check(obj, context.scene):
-            raise BindError(session.stale_reason(obj))
-        session.apply(obj, context.scene, context.evaluated_depsgraph_get(), force=True)
-        return {"FINISHED"}
-
-
-class MESH_OT_material_deform_settle(_MeshOperator, bpy.types.Operator):
-    """Solve the current pose to convergence now (iterative methods settle over several live
-    updates while you drag; this finishes at once)"""
-
-    bl_idname = "mesh.material_deform_settle"
-    bl_label = "Settle"
-
-    def run(self, context, obj):
-        if session.full_check(obj, context.scene):
-            raise BindError(session.stale_reason(obj))
-        with _Progress(context) as progress:
-            progress(0.1, "Material Deform: settling")
-            session.settle(obj, context.scene, context.evaluated_depsgraph_get())
-        return {"FINISHED"}
-
-
-class MESH_OT_material_deform_reset(_MeshOperator, bpy.types.Operator):
-    """Remove the deformation and the bind: the mesh gets its exact rest shape back"""
-
-    bl_idname = "mesh.material_deform_reset"
-    bl_label = "Reset"
-
-    def run(self, context, obj):
-        if obj.mode != "OBJECT":
-            bpy.ops.object.mode_set(mode="OBJECT")
-        session.unbind(obj)
-        return {"FINISHED"}
-
-
-class MESH_OT_material_deform_bake(_MeshOperator, bpy.types.Operator):
-    """Bake the deformation over a frame range into keyframed shape keys (one per frame)"""
-
-    bl_idname = "mesh.material_deform_bake"
-    bl_label = "Bake"
-
-    frame_start: IntProperty(name="Start", default=-1, options={"SKIP_SAVE"})
-    frame_end: IntProperty(name="End", default=-1, options={"SKIP_SAVE"})
-
-    def run(self, context, obj):
-        s = obj.material_deform
-        start = self.frame_start if self.frame_start >= 0 else s.bake_start
-        end = self.frame_end if self.frame_end >= 0 else s.bake_end
-        if end < start:
-            raise BindError(f"Bake range is empty ({start}..{end})")
-        if session.full_check(obj, context.scene):
-            raise BindError(session.stale_reason(obj))
-        with _Progress(context) as progress:
-            names = bake.bake(obj, context.scene, range(start, end + 1), progress)
-        self.report({"INFO"}, f"Baked {len(names)} frame(s); Live turned off")
-        return {"FINISHED"}
-
-
-class MESH_OT_material_deform_assign_empty(_MeshOperator, bpy.types.Operator):
+class MESH_OT_material_deform_assign_empty(_Operator, bpy.types.Operator):
     """Assign an existing Empty to the active anchor"""
 
     bl_idname = "mesh.material_deform_assign_empty"
@@ -284,19 +325,257 @@ class MESH_OT_material_deform_assign_empty(_MeshOperator, bpy.types.Operator):
         return {"FINISHED"}
 
 
+# --- binding and posing (the object) ------------------------------------------------------------
+
+_AT_CURRENT_POSE = (
+    "Make where the Empties are now the new bind pose: the mesh goes back to its rest shape "
+    "and the Empties stay where they are, so they no longer sit on their faces"
+)
+
+
+class _Bind(_ObjectOperator):
+    at_current_pose: BoolProperty(
+        name="Bind at Current Pose", description=_AT_CURRENT_POSE, options={"SKIP_SAVE"}
+    )
+
+    @classmethod
+    def description(cls, _context, properties):
+        if properties.at_current_pose:
+            return "Bind at Current Pose. " + _AT_CURRENT_POSE
+        return cls.bl_description
+
+    def run(self, context, obj):
+        _to_object_mode(context, obj)
+        rebind = obj.material_deform.bound
+        with _Progress(context) as progress:
+            entry = session.bind(obj, context.scene, progress, self.at_current_pose)
+        what = f"{len(entry.rest)} vertices, {entry.n_anchors} anchor(s)"
+        if self.at_current_pose:
+            msg = f"Bound at the current pose ({what}): the mesh is at its rest shape"
+        elif rebind:
+            msg = f"Rebound {what}, keeping the bind pose"
+        else:
+            msg = f"Bound {what}"
+        self.report({"INFO"}, msg)
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_bind(_Bind, bpy.types.Operator):
+    """Precompute the deformation for the current anchors and stiffness. The first Bind takes
+    the Empties' placement as the bind pose; binding again keeps that pose"""
+
+    bl_idname = "object.material_deform_bind"
+    bl_label = "Bind"
+
+
+class OBJECT_OT_material_deform_rebind(_Bind, bpy.types.Operator):
+    """Bind again after changing the mesh, anchors, stiffness or settings, keeping the bind
+    pose: the mesh keeps its pose and the Empties stay on their faces"""
+
+    bl_idname = "object.material_deform_rebind"
+    bl_label = "Rebind"
+
+    @classmethod
+    def poll(cls, context):
+        obj = cls.target(context)
+        if obj is not None and obj.material_deform.bound:
+            return True
+        _poll_message(cls, "Not bound yet: use Bind")
+        return False
+
+
+class OBJECT_OT_material_deform_update(_ObjectOperator, bpy.types.Operator):
+    """Recompute the deformation from the current Empty transforms now"""
+
+    bl_idname = "object.material_deform_update"
+    bl_label = "Update"
+
+    def run(self, context, obj):
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        session.apply(obj, context.scene, context.evaluated_depsgraph_get(), force=True)
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_settle(_ObjectOperator, bpy.types.Operator):
+    """Solve the current pose to convergence now (iterative methods settle over several live
+    updates while you drag; this finishes at once)"""
+
+    bl_idname = "object.material_deform_settle"
+    bl_label = "Settle"
+
+    def run(self, context, obj):
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        with _Progress(context) as progress:
+            progress(0.1, "Material Deform: settling")
+            session.settle(obj, context.scene, context.evaluated_depsgraph_get())
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_reset(_ObjectOperator, bpy.types.Operator):
+    """Remove the deformation and the bind: the mesh gets its exact rest shape back (the
+    Empties stay where they are)"""
+
+    bl_idname = "object.material_deform_reset"
+    bl_label = "Reset"
+
+    def run(self, context, obj):
+        _to_object_mode(context, obj)
+        session.unbind(obj)
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_reset_empties(_ObjectOperator, bpy.types.Operator):
+    """Move every anchor Empty back to its bind pose (following the object if it moved): the
+    mesh returns to its rest shape"""
+
+    bl_idname = "object.material_deform_reset_empties"
+    bl_label = "Reset Empties"
+
+    def run(self, context, obj):
+        n = session.reset_empties(obj)
+        self.report({"INFO"}, f"{n} Empty(s) back at the bind pose")
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_select_mesh(_ObjectOperator, bpy.types.Operator):
+    """Select the mesh this anchor Empty drives (and make it active)"""
+
+    bl_idname = "object.material_deform_select_mesh"
+    bl_label = "Select Mesh"
+
+    def run(self, context, obj):
+        if context.object is not None and context.object.mode != "OBJECT":
+            raise BindError("Leave the current mode first")
+        for o in context.selected_objects:
+            o.select_set(False)
+        obj.select_set(True)
+        context.view_layer.objects.active = obj
+        return {"FINISHED"}
+
+
+# --- bakes ----------------------------------------------------------------------------------------
+
+
+class _BakeOperator(_ObjectOperator):
+    frame_start: IntProperty(name="Start", description="First frame", options={"SKIP_SAVE"})
+    frame_end: IntProperty(name="End", description="Last frame", options={"SKIP_SAVE"})
+
+    def frames(self, context, obj) -> range:
+        """The frame range (the panel's Start / End unless given), written back into the
+        operator's own properties so its redo panel shows what was baked."""
+        s = obj.material_deform
+        if not self.properties.is_property_set("frame_start"):
+            self.frame_start = s.bake_start
+        if not self.properties.is_property_set("frame_end"):
+            self.frame_end = s.bake_end
+        if self.frame_end < self.frame_start:
+            raise BindError(f"Bake range is empty ({self.frame_start}..{self.frame_end})")
+        if session.full_check(obj, context.scene):
+            raise BindError(session.stale_reason(obj))
+        return range(self.frame_start, self.frame_end + 1)
+
+
+class OBJECT_OT_material_deform_bake(_BakeOperator, bpy.types.Operator):
+    """Bake the deformation over a frame range into keyframed shape keys (one per frame),
+    replacing an earlier bake; Live turns off"""
+
+    bl_idname = "object.material_deform_bake"
+    bl_label = "Bake to Shape Keys"
+
+    def run(self, context, obj):
+        _to_object_mode(context, obj)
+        frames = self.frames(context, obj)
+        with _Progress(context) as progress:
+            names = bake.bake(obj, context.scene, frames, progress)
+        self.report({"INFO"}, f"Baked {len(names)} frame(s) to shape keys; Live is off")
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_bake_point_cache(_BakeOperator, bpy.types.Operator):
+    """Bake the deformation over a frame range into a .pc2 point cache read by a Mesh Cache
+    modifier at the top of the stack (replacing an earlier bake); Live turns off"""
+
+    bl_idname = "object.material_deform_bake_point_cache"
+    bl_label = "Bake to Point Cache"
+
+    filepath: StringProperty(
+        name="File",
+        description="The .pc2 file (empty: the panel's File, or '//<object name>.pc2')",
+        subtype="FILE_PATH",
+        options={"SKIP_SAVE"} | _BLEND_RELATIVE,
+    )
+
+    def run(self, context, obj):
+        _to_object_mode(context, obj)
+        frames = self.frames(context, obj)
+        if not self.filepath:
+            self.filepath = bake.cache_path(obj, obj.material_deform.bake_cache_path)[0]
+        with _Progress(context) as progress:
+            path = bake.bake_point_cache(obj, context.scene, frames, self.filepath, progress)
+        self.report({"INFO"}, f"Baked {len(frames)} frame(s) to {path}; Live is off")
+        return {"FINISHED"}
+
+
+class OBJECT_OT_material_deform_clear_bake(_ObjectOperator, bpy.types.Operator):
+    """Remove the bake (the baked shape keys with their keyframes, or the Mesh Cache modifier;
+    a .pc2 file stays on disk) and turn Live on again"""
+
+    bl_idname = "object.material_deform_clear_bake"
+    bl_label = "Clear Bake"
+
+    def run(self, context, obj):
+        if not bake.clear(obj, context.scene):
+            self.report({"INFO"}, "No bake to clear; Live is on")
+        return {"FINISHED"}
+
+
+# --- the 0.1 ids --------------------------------------------------------------------------------
+
+
+def _alias(cls, old_idname: str):
+    """The same operator under its 0.1 id, hidden from search (INTERNAL). A copy of the class,
+    not a subclass: Blender cannot register a subclass of a registered operator."""
+    ns = {k: v for k, v in cls.__dict__.items() if k not in ("__dict__", "__weakref__")}
+    ns.update(
+        bl_idname=old_idname,
+        bl_options={"REGISTER", "UNDO", "INTERNAL"},
+        bl_description=f"Old name of {cls.bl_idname} (kept until the next release). "
+        + cls.bl_description,
+    )
+    return type("MESH_OT_" + old_idname.split(".", 1)[1], cls.__bases__, ns)
+
+
+ALIASES = {
+    "mesh.material_deform_bind": OBJECT_OT_material_deform_bind,
+    "mesh.material_deform_update": OBJECT_OT_material_deform_update,
+    "mesh.material_deform_settle": OBJECT_OT_material_deform_settle,
+    "mesh.material_deform_reset": OBJECT_OT_material_deform_reset,
+    "mesh.material_deform_bake": OBJECT_OT_material_deform_bake,
+}
+
 classes = (
     MESH_OT_material_deform_stiffness_from_paint,
+    MESH_OT_material_deform_add_paint_layer,
     MESH_OT_material_deform_show_stiffness,
+    MESH_OT_material_deform_hide_stiffness,
+    MESH_OT_material_deform_learn_stiffness,
     MESH_OT_material_deform_add_anchor,
     MESH_OT_material_deform_remove_anchor,
     MESH_OT_material_deform_select_anchor,
     MESH_OT_material_deform_assign_empty,
-    MESH_OT_material_deform_bind,
-    MESH_OT_material_deform_update,
-    MESH_OT_material_deform_settle,
-    MESH_OT_material_deform_reset,
-    MESH_OT_material_deform_bake,
-    MESH_OT_material_deform_learn_stiffness,
+    OBJECT_OT_material_deform_bind,
+    OBJECT_OT_material_deform_rebind,
+    OBJECT_OT_material_deform_update,
+    OBJECT_OT_material_deform_settle,
+    OBJECT_OT_material_deform_reset,
+    OBJECT_OT_material_deform_reset_empties,
+    OBJECT_OT_material_deform_select_mesh,
+    OBJECT_OT_material_deform_bake,
+    OBJECT_OT_material_deform_bake_point_cache,
+    OBJECT_OT_material_deform_clear_bake,
+    *(_alias(cls, old) for old, cls in ALIASES.items()),
 )
 
 

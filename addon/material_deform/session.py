@@ -73,13 +73,45 @@ def after_undo(scene, objects) -> None:
 
 
 def mark_stale(obj, reason: str) -> None:
-    """A bound setting changed: stop updating until the next Bind."""
+    """Something the fingerprints do not cover changed (e.g. the axes Empty turned): stop
+    updating until the next Bind. Settings the fingerprints cover call
+    :func:`settings_changed` instead, so that changing them back makes the bind valid again."""
     s = settings(obj) if bridge.is_mesh(obj) else None
     if s is not None and s.bound:
         s.rebind_reason = reason  # saved, so it also holds after reloading the file
         key = obj.as_pointer()
         _stale[key] = reason
         _cache.pop(key, None)
+
+
+def settings_changed(obj, scene=None) -> None:
+    """A setting the bind depends on changed (a property's update callback): drop the solver
+    and compare the object with its bound state again, now in Object Mode (otherwise when it
+    leaves Edit Mode). Ticking and unticking a box leaves the bind as valid as it was."""
+    if not bridge.is_mesh(obj) or not settings(obj).bound:
+        return
+    key = obj.as_pointer()
+    _cache.pop(key, None)
+    _stale.pop(key, None)
+    if scene is not None and obj.mode == "OBJECT":
+        try:
+            full_check(obj, scene)
+        except Exception as exc:  # an update callback must never raise into Blender
+            _stale[key] = f"Check failed: {exc}"
+
+
+def owner_of(obj, scene):
+    """The mesh whose anchor (or anisotropy axes) ``obj`` drives, None if there is none: the
+    panel and the object operators then act on that mesh while an Empty is selected."""
+    if obj is None or obj.type != "EMPTY" or scene is None:
+        return None
+    for o in scene.objects:
+        if o.type != "MESH":
+            continue
+        s = settings(o)
+        if s.axes_empty == obj or any(a.empty == obj for a in s.anchors):
+            return o
+    return None
 
 
 # --- gathering and validating inputs ----------------------------------------------------------
@@ -217,38 +249,102 @@ def _diff_reason(obj, stored, current) -> str:
         what_method = "method"
     what = ("mesh (topology or rest shape)", "anchors", "stiffness", what_method)
     changed = [w for w, a, b in zip(what, stored, current, strict=True) if a != b]
-    return "Changed since bind: " + ", ".join(changed) + " - click Bind again"
+    return "Changed since bind: " + ", ".join(changed) + " - click Rebind"
 
 
 # --- public operations -------------------------------------------------------------------------
 
 
-def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> Entry:
-    """Build the active method's solver and make the current Empty transforms the bind pose.
-    Atomic: nothing on the object changes unless every step succeeds."""
+def _stored_obj_bind(obj) -> np.ndarray | None:
+    m = np.array(tuple(settings(obj).obj_bind_matrix), dtype=np.float64).reshape(4, 4)
+    return m if m.any() else None  # all zeros: bound before the object's matrix was kept
+
+
+def has_bind_pose(anc) -> bool:
+    """True if the anchor's stored bind matrix belongs to its current Empty."""
+    return anc.empty is not None and anc.bound_empty == anc.empty
+
+
+def _bind_pose(obj, keep: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(object matrix at bind (4,4), Empty matrices at bind (k,4,4)) for a bind. ``keep``:
+    keep the bind pose stored by the last bind for every anchor that still has the same Empty
+    (Rebind); an anchor without one (added since, or given another Empty) gets its Empty's
+    current placement, carried back to where the object was at bind, so it starts at rest."""
+    s = settings(obj)
+    m_obj = bridge.world_matrix(obj)
+    m_obj_bind = _stored_obj_bind(obj) if keep else None
+    if m_obj_bind is None:
+        m_obj_bind = m_obj
+    # the object where it was at bind: exactly the Empties' matrices (no round-off, so the bind
+    # pose evaluates to the rest shape bit for bit)
+    back = None if np.array_equal(m_obj_bind, m_obj) else m_obj_bind @ am.affine_inverse(m_obj)
+    mats = []
+    for anc in s.anchors:
+        if keep and has_bind_pose(anc):
+            mats.append(np.array(tuple(anc.bind_matrix), dtype=np.float64).reshape(4, 4))
+        else:
+            m = bridge.world_matrix(anc.empty)
+            mats.append(m if back is None else back @ m)
+    return m_obj_bind, np.stack(mats)
+
+
+def _pose_positions(obj, entry: Entry, m_obj_bind, bind_m, budget=None) -> np.ndarray:
+    """Positions (n,3) of the full mesh for the Empties' current placement, measured from the
+    given bind pose."""
+    m_obj = bridge.world_matrix(obj)
+    now = np.stack([bridge.world_matrix(a.empty) for a in settings(obj).anchors])
+    if np.array_equal(now, bind_m) and np.array_equal(m_obj, m_obj_bind):
+        return entry.rest.copy()
+    try:
+        t = am.anchor_transforms(m_obj, now, bind_m, m_obj_bind)
+        res = method_of(obj).solve(entry.solver, t, entry.state, budget)
+    except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
+        raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
+    if entry.used is None:
+        return res.positions
+    out = entry.rest.copy()
+    out[entry.used] = res.positions
+    return out
+
+
+def bind(
+    obj,
+    scene,
+    progress: Callable[[float, str], None] | None = None,
+    at_current_pose: bool = False,
+) -> Entry:
+    """Build the active method's solver. A first bind makes the Empties' current placement
+    the bind pose (the mesh stays at rest). A rebind keeps the bind pose, so the mesh keeps
+    its pose and the Empties stay on their faces; ``at_current_pose`` makes the current
+    placement the new bind pose instead (the mesh goes back to its rest shape where the
+    Empties are now). Atomic: nothing on the object changes unless every step succeeds."""
     progress = progress or (lambda _f, _t: None)
+    s = settings(obj)
+    keep = s.bound and not at_current_pose
     progress(0.05, "Material Deform: reading mesh")
     inp = gather(obj, scene, binding=True)
     progress(0.3, "Material Deform: precomputing the solver")
     entry = _build(inp, obj)
-    s = settings(obj)
+    m_obj_bind, bind_m = _bind_pose(obj, keep)
+    progress(0.8, "Material Deform: solving the current pose")
+    x = _pose_positions(obj, entry, m_obj_bind, bind_m)
     kb_name = s.output_key_name or bridge.OUTPUT_KEY
     if bridge.output_key(obj, kb_name) is None and bridge.output_key(obj) is not None:
         kb_name = bridge.OUTPUT_KEY  # an old key of the default name: reuse it
     progress(0.9, "Material Deform: writing shape key")
     # Everything above only read; from here on only writes that cannot fail on bad input.
     method_of(obj).commit(obj, inp)
-    for anc in s.anchors:
-        anc.bind_matrix = bridge.world_matrix(anc.empty).ravel().tolist()
-    s.obj_bind_matrix = bridge.world_matrix(obj).ravel().tolist()
+    for anc, m in zip(s.anchors, bind_m, strict=True):
+        anc.bind_matrix = m.ravel().tolist()
+        anc.bound_empty = anc.empty
+    s.obj_bind_matrix = m_obj_bind.ravel().tolist()
     s.fp_topology, s.fp_anchors, s.fp_stiffness, s.fp_method = inp.fp
     had_keys = obj.data.shape_keys is not None
     kb, created = bridge.ensure_output_key(obj, kb_name)
     if not s.bound or not had_keys:
         s.created_basis = created
     s.output_key_name = kb.name
-    # a fresh bind starts at the rest shape exactly
-    bridge.write_key(obj, kb, entry.rest_f32)
+    bridge.write_key(obj, kb, x)  # at the bind pose: the rest shape exactly
     s.bound = True
     s.rebind_reason = ""
     key = obj.as_pointer()
@@ -259,6 +355,64 @@ def bind(obj, scene, progress: Callable[[float, str], None] | None = None) -> En
     entry.last_key = _matrix_key(obj, None)
     progress(1.0, "")
     return entry
+
+
+def place_new_anchor(obj, empty, vertices) -> None:
+    """An anchor added to a bound, posed mesh: move its new Empty (made at the faces' rest
+    place) onto the faces as the mesh shows them, by the rigid motion that best fits their
+    rest positions to their posed ones, and give it the rest place as its bind pose. A rebind
+    then keeps the mesh as it is instead of pulling these faces back to rest."""
+    s = settings(obj)
+    key = bridge.output_key(obj, s.output_key_name or bridge.OUTPUT_KEY)
+    if not s.bound or key is None or bridge.is_reference_key(obj, key):
+        return
+    idx = np.asarray(vertices, dtype=np.int64)
+    r = bridge.rest_positions(obj.data)[idx]
+    x = bridge.shape_key_positions(obj, key.name)[idx]
+    if len(idx) < 3 or not np.all(np.isfinite(x)) or np.allclose(x, r, atol=1e-7):
+        return
+    k = am.rigid_fit(r, x)  # (4,4) local rest -> posed
+    m_obj = bridge.world_matrix(obj)
+    m_obj_bind = _stored_obj_bind(obj)
+    if m_obj_bind is None:
+        m_obj_bind = m_obj
+    rest_world = bridge.world_matrix(empty)
+    inv_obj = am.affine_inverse(m_obj)
+    bridge.set_world_matrix(empty, m_obj @ k @ inv_obj @ rest_world)
+    anc = next(a for a in s.anchors if a.empty == empty)
+    anc.bind_matrix = (m_obj_bind @ inv_obj @ rest_world).ravel().tolist()
+    anc.bound_empty = empty
+
+
+def reset_empties(obj) -> int:
+    """Put every anchor Empty back to its bind pose (relative to where the object is now), so
+    the mesh is at its rest shape again. Returns how many Empties were moved."""
+    s = settings(obj)
+    m_obj = bridge.world_matrix(obj)
+    m_obj_bind = _stored_obj_bind(obj)
+    if m_obj_bind is None:
+        m_obj_bind = m_obj
+    ancs = [a for a in s.anchors if has_bind_pose(a)]
+    if not ancs:
+        raise BindError("No bind pose stored: click Bind first")
+    carry = None  # the object has not moved: the stored matrices exactly (the rest shape)
+    if not np.array_equal(m_obj, m_obj_bind):
+        try:
+            carry = m_obj @ am.affine_inverse(m_obj_bind)
+        except ValueError as exc:
+            raise BindError(f"Cannot place the Empties: {exc}") from None
+    for anc in ancs:
+        bind_m = np.array(tuple(anc.bind_matrix), dtype=np.float64).reshape(4, 4)
+        bridge.set_world_matrix(anc.empty, bind_m if carry is None else carry @ bind_m)
+    return len(ancs)
+
+
+def _empty_reason(obj) -> str:
+    """Why the stored bind pose no longer fits: an anchor was given another Empty."""
+    for anc in settings(obj).anchors:
+        if anc.bound_empty is not None and anc.bound_empty != anc.empty:
+            return f"Anchor '{anc.name}' uses another Empty since bind - click Rebind"
+    return ""
 
 
 def unbind(obj) -> None:
@@ -288,6 +442,9 @@ def entry_for(obj, scene) -> Entry:
         _stale[key] = s.rebind_reason
         _cache.pop(key, None)
         raise BindError(s.rebind_reason)
+    reason = _empty_reason(obj)
+    if reason:
+        raise _stop(obj, reason)
     entry = _cache.get(key)
     if (
         entry is not None
@@ -322,6 +479,10 @@ def full_check(obj, scene) -> str:
     if s.rebind_reason:
         _stale[key] = s.rebind_reason
         return s.rebind_reason
+    reason = _empty_reason(obj)
+    if reason:
+        _stop(obj, reason)
+        return reason
     try:
         inp = gather(obj, scene, build=False)
     except BindError as exc:
@@ -377,7 +538,7 @@ def _check_rest(obj, entry: Entry) -> None:
         raise _stop(
             obj,
             "Rest shape changed since bind (Apply Scale, a script, or reordered vertices) - "
-            "click Bind again",
+            "click Rebind",
         )
 
 
@@ -389,7 +550,7 @@ def _output_key(obj, entry: Entry):
         raise _stop(
             obj,
             f"Output shape key '{s.output_key_name}' is gone (deleted or renamed before the "
-            "file was saved): click Bind to create it again",
+            "file was saved): click Rebind to create it again",
         )
     if bridge.is_reference_key(obj, kb):
         raise _stop(
@@ -411,7 +572,7 @@ def transforms_now(obj, entry: Entry, scene, depsgraph=None) -> np.ndarray | Non
     s = settings(obj)
     ancs = _anchor_empties(obj, scene)
     if len(ancs) != entry.n_anchors:
-        raise BindError("Anchors changed since bind - click Bind again")
+        raise BindError("Anchors changed since bind - click Rebind")
     mats = [bridge.world_matrix(a.empty, depsgraph) for a in ancs]
     for a, m in zip(ancs, mats, strict=True):
         if m is None:

@@ -143,14 +143,103 @@ def stored_stiffness(obj, a: bridge.MeshArrays) -> tuple[np.ndarray | None, np.n
     return psi, phi
 
 
-def show_stiffness(obj) -> np.ndarray:
-    """Write a display colour attribute from the stored psi; returns the face paint values."""
+def _field_values(obj, a: bridge.MeshArrays, field: str) -> tuple[np.ndarray, str]:
+    """Stiffness of the shown field and where it lives: ((P,) per polygon, "FACE") or
+    ((e,) per edge, "EDGE")."""
+    mesh = obj.data
+    if field == "SHEAR":
+        psi = bridge.read_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", a.n_polys)
+        if psi is None:
+            raise BindError("No stiffness stored yet: run 'Stiffness from Paint' first")
+        return psi, "FACE"
+    n_e = len(a.edge_verts)
+    if field == "BEND":
+        phi = bridge.read_float_attribute(mesh, bridge.BEND_ATTR, "EDGE", n_e)
+        if phi is None:
+            raise BindError("No bending stiffness stored yet: run 'Stiffness from Paint' first")
+        return phi, "EDGE"
+    axis = "XYZ".index(field[-1])
+    phi3 = bridge.read_vector_attribute(mesh, bridge.BEND_AXES_ATTR, "EDGE", n_e)
+    if phi3 is None:
+        raise BindError(
+            "No per-axis bending stored yet: with Anisotropic on, run 'Stiffness from Paint' "
+            "or 'Learn from Shape Keys'"
+        )
+    return phi3[:, axis], "EDGE"
+
+
+def show_stiffness(obj, field: str = "SHEAR") -> np.ndarray:
+    """Write the display colour attribute (blue = flexible, red = stiff) from a stored field:
+    "SHEAR" (per face), "BEND" or "BEND_X/Y/Z" (per edge, averaged at each vertex over the
+    edges between two faces, as Learn writes its paint). Makes it the active colour attribute
+    (Solid > Attribute shading shows the active one) and remembers the one it replaced.
+    Returns the paint value of every corner."""
     s = settings(obj)
     mesh = obj.data
-    psi = bridge.read_float_attribute(mesh, bridge.SHEAR_ATTR, "FACE", len(mesh.polygons))
-    if psi is None:
-        raise BindError("No stiffness stored yet: run 'Stiffness from Paint' first")
     a = bridge.mesh_arrays(mesh)
-    paint = sm.stiffness_to_paint(psi, s.stiffness_span)
-    bridge.write_face_colors(mesh, bridge.DISPLAY_ATTR, sm.stiffness_colors(paint), _loop_poly(a))
-    return paint
+    values, domain = _field_values(obj, a, field)
+    lp = _loop_poly(a)
+    paint = sm.stiffness_to_paint(values, s.stiffness_span)
+    if domain == "FACE":
+        corner = paint[lp]
+    else:
+        inner = np.bincount(a.loop_edge, minlength=len(a.edge_verts)) >= 2
+        vertex = amap.edge_paint_to_vertices(paint, a.edge_verts, inner, len(a.rest), fill=1.0)
+        corner = vertex[a.loop_vert]
+    prev = bridge.active_color_name(mesh)
+    if prev != bridge.DISPLAY_ATTR:
+        s.display_prev_color = prev
+    bridge.write_corner_colors(mesh, bridge.DISPLAY_ATTR, sm.stiffness_colors(corner))
+    return corner
+
+
+def hide_stiffness(obj) -> bool:
+    """Remove the display colour attribute and make the colour attribute Show replaced active
+    again. False if nothing was shown."""
+    s = settings(obj)
+    removed = bridge.remove_attribute(obj.data, bridge.DISPLAY_ATTR)
+    if s.display_prev_color:
+        bridge.set_active_color(obj.data, s.display_prev_color)
+    s.display_prev_color = ""
+    return removed
+
+
+def keep_display_out_of_paint(obj) -> bool:
+    """Vertex Paint paints the active colour attribute: when the display one is active there,
+    make the paint layer active instead (the one Show replaced, the stiffness colour attribute,
+    any other, or a new stiffness attribute). True if it switched."""
+    mesh = obj.data
+    if obj.mode != "VERTEX_PAINT" or bridge.active_color_name(mesh) != bridge.DISPLAY_ATTR:
+        return False
+    s = settings(obj)
+    others = [c.name for c in mesh.color_attributes if c.name != bridge.DISPLAY_ATTR]
+    for name in (s.display_prev_color, s.color_attribute, *others):
+        if name and name != bridge.DISPLAY_ATTR and bridge.set_active_color(mesh, name):
+            return True
+    bridge.create_color_attribute(mesh, s.color_attribute or "Stiffness")
+    return True
+
+
+def add_paint_layer(obj) -> tuple[list[str], bool]:
+    """Create the paint layer of the current Paint Source if it is missing (the vertex group,
+    with its X / Y / Z groups when anisotropic; or the colour attribute, black = flexible) and
+    make it the active one for painting. Returns (names, whether any was created)."""
+    s = settings(obj)
+    if s.stiffness_source == "VERTEX_GROUP":
+        names = [s.stiffness_group]
+        if s.anisotropic:
+            names += list(amap.axis_group_names(s.stiffness_group))
+        created = [bridge.ensure_vertex_group(obj, n) for n in names]
+        bridge.set_active_vertex_group(obj, s.stiffness_group)
+        return names, any(created)
+    name = s.color_attribute
+    if obj.data.color_attributes.get(name) is not None:
+        bridge.set_active_color(obj.data, name)
+        return [name], False
+    if not bridge.color_attribute_writable(obj, name):
+        raise BindError(
+            f"Cannot create color attribute '{name}': the name is taken by a vertex group or "
+            "another attribute (pick another Color Attribute name)"
+        )
+    bridge.create_color_attribute(obj.data, name)
+    return [name], True

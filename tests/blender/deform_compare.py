@@ -100,7 +100,7 @@ for pick, anchor_mode in anchors:
     bridge.select_polygons_edit(obj, mask)
     assert bpy.ops.mesh.material_deform_add_anchor(mode=anchor_mode) == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
-assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
 
 top, bottom, middle = (a.empty for a in obj.material_deform.anchors)
 move = (

@@ -189,49 +189,229 @@ def expect_error(op, match, **kw):
 
 
 # --- the panel, drawn into a recording layout ---------------------------------------------------
+#
+# Headless Blender cannot draw a panel, so it is drawn into a layout that records what it holds
+# (checking every property and operator name against RNA) and then lays it out the way Blender
+# does in a panel: a row gives its items equal shares (an icon-only item one icon's width; a
+# nested row as many shares as it has items), and an item whose text needs more than its share
+# is cut ("…"). Widths are in pixels at UI scale 1, text measured with Blender's own UI font
+# (blf, 11 px); the margins were measured on screenshots of the 3.4 GUI under Xvfb
+# (scripts/screenshots_blender.sh).
+
+SIDEBAR_WIDTH = 229  # Blender's default sidebar width, with its tab column
+PANEL_WIDTH = 173  # what a panel's rows get of it
+UNIT = 20  # UI_UNIT_X: an icon, an icon-only button
+PAD = 12  # a button's text margins
+LABEL_PAD = 10  # a label's text margins
+SPLIT = 0.4  # share of a named field that its label gets
+
+
+def text_width(text):
+    import blf
+
+    try:
+        blf.size(0, 11)
+    except TypeError:
+        blf.size(0, 11, 72)
+    return blf.dimensions(0, text)[0]
+
+
+class _OperatorProps:
+    """What ``layout.operator`` returns: only the operator's own properties can be set."""
+
+    def __init__(self, idname):
+        mod, name = idname.split(".")
+        self._names = {
+            p.identifier for p in getattr(getattr(bpy.ops, mod), name).get_rna_type().properties
+        }
+
+    def __setattr__(self, key, value):
+        if key != "_names":
+            assert key in self._names, f"operator has no property {key!r}"
+        object.__setattr__(self, key, value)
 
 
 class RecordingLayout:
-    def __init__(self, log):
+    def __init__(self, log, node=None):
         self.log = log
+        self.node = node if node is not None else {"kind": "column", "items": []}
+
+    def __setattr__(self, key, value):  # use_property_split, enabled, alert, scale_y, ...
+        object.__setattr__(self, key, value)
 
     def _check(self, data, prop):
         assert prop in data.bl_rna.properties, f"{data!r} has no property {prop!r}"
         self.log.append(prop)
 
-    def prop(self, data, prop, **_kw):
-        self._check(data, prop)
+    def _add(self, **item):
+        self.node["items"].append(item)
 
-    def prop_search(self, data, prop, search_data, search_prop, **_kw):
+    def _child(self, kind, **kw):
+        node = {"kind": kind, "items": [], **kw}
+        self.node["items"].append(node)
+        return RecordingLayout(self.log, node)
+
+    def prop(
+        self, data, prop, text=None, icon="NONE", icon_only=False, toggle=False, expand=False, **_kw
+    ):
+        self._check(data, prop)
+        self._add(
+            kind="prop",
+            data=data,
+            prop=prop,
+            text=text,
+            icon=icon,
+            icon_only=icon_only,
+            toggle=toggle,
+            expand=expand,
+        )
+
+    def prop_search(self, data, prop, search_data, search_prop, text=None, icon="NONE", **_kw):
         self._check(data, prop)
         self._check(search_data, search_prop)
+        self._add(kind="search", data=data, prop=prop, text=text, icon=icon)
 
-    def operator(self, idname, **_kw):
+    def operator(self, idname, text=None, icon="NONE", **_kw):
         mod, name = idname.split(".")
         assert hasattr(getattr(bpy.ops, mod), name), idname
         self.log.append(idname)
+        if text is None:
+            text = getattr(bpy.ops, mod).__getattr__(name).get_rna_type().name
+        self._add(kind="operator", text=text, icon=icon, idname=idname)
+        return _OperatorProps(idname)
+
+    def menu(self, menu, text=None, icon="NONE", **_kw):
+        assert hasattr(bpy.types, menu), menu
+        self.log.append(menu)
+        self._add(kind="operator", text=text or getattr(bpy.types, menu).bl_label, icon=icon)
 
     def template_list(self, list_type, _list_id, data, prop, active_data, active_prop, **_kw):
         assert hasattr(bpy.types, list_type), list_type
         self._check(data, prop)
         self._check(active_data, active_prop)
+        self._add(kind="list")
 
-    def label(self, **_kw):
+    def label(self, text="", icon="NONE", **_kw):
+        self.log.append(("label", text))
+        self._add(kind="label", text=text, icon=icon)
+
+    def separator(self, **_kw):
         pass
 
     def box(self):
-        return self
+        return self._child("box")
 
     def row(self, **_kw):
-        return self
+        return self._child("row")
 
     def column(self, **_kw):
-        return self
+        return self._child("column")
+
+    def split(self, factor=0.5, **_kw):
+        return self._child("split", factor=factor)
 
 
-def draw_panel():
+def _item_needs(item):
+    """[(text, width the text needs, fixed)] of one item: a named field is a label and a field."""
+    kind, icon = item["kind"], item.get("icon", "NONE")
+    icon_w = UNIT if icon not in ("NONE", "BLANK1", None) else 0
+    if kind == "label":
+        if not item["text"]:
+            return [("<icon>", icon_w)]
+        return [(item["text"], text_width(item["text"]) + LABEL_PAD + (icon_w and icon_w + 6))]
+    if kind == "operator":
+        if not item["text"]:
+            return [("<icon>", UNIT)]
+        return [(item["text"], text_width(item["text"]) + PAD + (icon_w and 16))]
+    if kind == "list":
+        return [("<list>", 60)]
+    rna = item["data"].bl_rna.properties[item["prop"]]
+    name = rna.name if item["text"] is None else item["text"]
+    if kind == "search" or rna.type in {"STRING", "POINTER"}:
+        if not name:
+            return [("<field>", 40 + icon_w)]
+        return [(name, (text_width(name) + 6) / SPLIT)]
+    if item["icon_only"]:
+        return [("<icon>", UNIT)]
+    if rna.type == "BOOLEAN":
+        w = text_width(name) + (PAD + icon_w if item["toggle"] else UNIT + 6)
+        return [(name, w)]
+    if rna.type == "ENUM":
+        items = [e.name for e in rna.enum_items] or [""]
+        if item["expand"]:
+            widest = max(text_width(t) for t in items) + PAD
+            return [(t, widest) for t in items]
+        value = max(text_width(t) for t in items) + PAD + UNIT  # the widest choice and an arrow
+        if not name:
+            return [(items[0], value)]
+        return [(name, max((text_width(name) + 6) / SPLIT, value / (1 - SPLIT)))]
+    value = getattr(item["data"], item["prop"])
+    shown = f"{name}: {value:.6g}" if name else f"{value:.6g}"
+    return [(shown, text_width(shown) + PAD + UNIT)]
+
+
+def _icon_only(node):
+    """An icon-only item, or a layout holding only such items (the + / - column of a list)."""
+    kind = node["kind"]
+    if kind in {"row", "column", "box", "split"}:
+        return bool(node["items"]) and all(_icon_only(c) for c in node["items"])
+    if kind in {"operator", "label"}:
+        return not node["text"]
+    return kind in {"prop", "search"} and node.get("icon_only", False)
+
+
+def _shares(node):
+    """Equal shares a layout asks for in a row (nested rows: one per item)."""
+    kind = node["kind"]
+    if kind in {"row", "split"}:
+        return sum(_shares(c) for c in node["items"] if not _icon_only(c)) or 1
+    return 1
+
+
+def cut_texts(node, width=PANEL_WIDTH):
+    """Texts that would be cut at this width: [(text, needs, gets)]."""
+    out = []
+    kind = node["kind"]
+    if kind in {"column", "box"}:
+        inner = width - (12 if kind == "box" else 0)
+        for c in node["items"]:
+            out += cut_texts(c, inner)
+    elif kind in {"row", "split"}:
+        # icon-only items keep an icon's width, the others share the rest equally
+        icons = [c for c in node["items"] if _icon_only(c)]
+        rest = width - UNIT * len(icons)
+        total = sum(_shares(c) for c in node["items"] if not _icon_only(c)) or 1
+        for c in node["items"]:
+            out += cut_texts(c, UNIT if _icon_only(c) else rest * _shares(c) / total)
+    else:
+        parts = _item_needs(node)
+        total = sum(w for _t, w in parts)
+        for t, w in parts:
+            gets = width * w / total if total > width else w
+            if gets < w - 0.5:
+                out.append((t, round(w), round(gets)))
+    return out
+
+
+def draw_panel(context=None):
+    """Draw the Material Deform panel and the subpanels Blender would show with it; returns
+    the log of property / operator names (and ("label", text) tuples). ``draw_panel.tree``
+    holds the recorded layout of the last call."""
+    context = context or bpy.context
     log = []
-    panel = bpy.types.VIEW3D_PT_material_deform
-    fake = type("P", (), {"layout": RecordingLayout(log)})()
-    panel.draw(fake, bpy.context)
+    root = {"kind": "column", "items": []}
+    panels = [bpy.types.VIEW3D_PT_material_deform]
+    panels += [
+        p
+        for p in bpy.types.Panel.__subclasses__()
+        if getattr(p, "bl_parent_id", "") == "VIEW3D_PT_material_deform"
+    ]
+    for panel in panels:
+        if hasattr(panel, "poll") and not panel.poll(context):
+            continue
+        layout = RecordingLayout(log, {"kind": "column", "items": [], "panel": panel.__name__})
+        root["items"].append(layout.node)
+        fake = type("P", (), {"layout": layout})()
+        panel.draw(fake, context)
+    draw_panel.tree = root
     return log

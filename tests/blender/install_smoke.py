@@ -43,7 +43,7 @@ import importlib  # noqa: E402
 if mode == "unsupported":
     pkg = importlib.import_module(module)
     assert pkg.unsupported and "built for CPython" in pkg.unsupported, pkg.unsupported
-    assert not hasattr(bpy.types, "MESH_OT_material_deform_bind"), "operators registered"
+    assert not hasattr(bpy.types, "OBJECT_OT_material_deform_bind"), "operators registered"
     assert hasattr(bpy.types, "VIEW3D_PT_material_deform_unsupported"), "no notice panel"
     assert bpy.context.preferences.addons[module].preferences is not None, "no notice prefs"
     import addon_utils  # noqa: E402
@@ -52,7 +52,7 @@ if mode == "unsupported":
     assert not hasattr(bpy.types, "VIEW3D_PT_material_deform_unsupported"), "not unregistered"
     print("INSTALL SMOKE OK", bpy.app.version_string, "unsupported:", pkg.unsupported)
     sys.exit(0)
-assert hasattr(bpy.types, "MESH_OT_material_deform_bind")
+assert hasattr(bpy.types, "OBJECT_OT_material_deform_bind")
 # register() checked the platform against the bundled wheel's tags (both zip kinds carry them)
 platform_check = importlib.import_module(module + ".platform_check")
 tags = platform_check.wheel_tags(platform_check.HERE)
@@ -74,7 +74,7 @@ for pick in (lambda p: p.center.z > 1.99, lambda p: p.center.z < -1.99):
     bridge.select_polygons_edit(obj, mask)
     assert bpy.ops.mesh.material_deform_add_anchor() == {"FINISHED"}
     bpy.ops.object.mode_set(mode="OBJECT")
-assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
 top = obj.material_deform.anchors[0].empty
 top.location.x += 1.0
 bpy.context.view_layer.update()

@@ -18,7 +18,7 @@ from helpers import (
 def test_no_anchors():
     obj = tube()
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "No anchors")
+    expect_error(bpy.ops.object.material_deform_bind, "No anchors")
     assert snapshot(obj) == before and not obj.material_deform.bound
 
 
@@ -28,7 +28,7 @@ def test_empty_vertex_group():
     add_anchor(obj, lambda p: p.center.z < -1.999)
     obj.vertex_groups[anc.vertex_group].remove(list(range(len(obj.data.vertices))))
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "contains no whole face")
+    expect_error(bpy.ops.object.material_deform_bind, "contains no whole face")
     assert snapshot(obj) == before
 
 
@@ -37,7 +37,7 @@ def test_missing_vertex_group_and_missing_stiffness_group():
     anc = add_anchor(obj, lambda p: p.center.z > 1.999)
     obj.vertex_groups.remove(obj.vertex_groups[anc.vertex_group])
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "not found")
+    expect_error(bpy.ops.object.material_deform_bind, "not found")
     expect_error(bpy.ops.mesh.material_deform_stiffness_from_paint, "No vertex group 'Stiffness'")
     assert snapshot(obj) == before
 
@@ -56,7 +56,7 @@ def _bound_and_moved():
     """A bound tube whose top anchor moved once: (object, top anchor, output after the move)."""
     obj = tube()
     top, _ = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top.empty.location.x += 0.5
     update()
     return obj, top, output(obj).copy()
@@ -67,10 +67,10 @@ def test_deleted_empty_before_and_after_bind():
     bpy.data.objects.remove(top.empty)
     update()
     np.testing.assert_array_equal(output(obj), result)  # no garbage written
-    expect_error(bpy.ops.mesh.material_deform_update, "Empty")
+    expect_error(bpy.ops.object.material_deform_update, "Empty")
     np.testing.assert_array_equal(output(obj), result)
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "has no Empty")
+    expect_error(bpy.ops.object.material_deform_bind, "has no Empty")
     assert snapshot(obj) == before
 
 
@@ -79,7 +79,7 @@ def test_empty_scaled_to_zero_after_bind():
     top.empty.scale = (1.0, 0.0, 1.0)
     update()
     np.testing.assert_array_equal(output(obj), result)  # the live update wrote nothing
-    expect_error(bpy.ops.mesh.material_deform_update, "Cannot pose")
+    expect_error(bpy.ops.object.material_deform_update, "Cannot pose")
     np.testing.assert_array_equal(output(obj), result)
 
 
@@ -88,13 +88,13 @@ def test_empty_unlinked_from_scene():
     top, _ = two_end_anchors(obj)
     for c in list(top.empty.users_collection):
         c.objects.unlink(top.empty)
-    expect_error(bpy.ops.mesh.material_deform_bind, "not in the scene")
+    expect_error(bpy.ops.object.material_deform_bind, "not in the scene")
 
 
 def test_mesh_edited_after_bind_needs_rebind():
     obj = tube()
     top, _ = two_end_anchors(obj)
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     top.empty.location.x += 0.5
     update()
     result = output(obj).copy()
@@ -110,38 +110,38 @@ def test_mesh_edited_after_bind_needs_rebind():
     assert "Changed since bind" in session.stale_reason(obj)
     n_old = len(result)
     np.testing.assert_array_equal(output(obj)[:n_old], result)  # old result left alone
-    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: mesh")
+    expect_error(bpy.ops.object.material_deform_update, "Changed since bind: mesh")
     # rebinding fixes it
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     assert session.stale_reason(obj) == ""
 
 
 def test_rest_shape_moved_in_edit_mode_needs_rebind():
     obj = tube()
     two_end_anchors(obj)
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     bpy.ops.object.mode_set(mode="EDIT")
     bpy.ops.mesh.select_all(action="SELECT")
     bpy.ops.transform.translate(value=(0.1, 0, 0))
     bpy.ops.object.mode_set(mode="OBJECT")
-    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: mesh")
+    expect_error(bpy.ops.object.material_deform_update, "Changed since bind: mesh")
 
 
 def test_stiffness_repainted_after_bind_needs_rebind():
     obj = tube()
     two_end_anchors(obj)
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     vg = obj.vertex_groups.new(name="Stiffness")
     vg.add(list(range(8)), 1.0, "REPLACE")
     bpy.ops.mesh.material_deform_stiffness_from_paint()
-    expect_error(bpy.ops.mesh.material_deform_update, "Changed since bind: stiffness")
+    expect_error(bpy.ops.object.material_deform_update, "Changed since bind: stiffness")
 
 
 def test_overlapping_anchors():
     obj = tube()
     add_anchor(obj, lambda p: p.center.z > 1.999)
     add_anchor(obj, lambda p: p.center.z > 1.7)
-    expect_error(bpy.ops.mesh.material_deform_bind, "share faces")
+    expect_error(bpy.ops.object.material_deform_bind, "share faces")
 
 
 def test_non_manifold_mesh():
@@ -149,7 +149,7 @@ def test_non_manifold_mesh():
     obj = mesh_object("Fan", verts, [(0, 1, 2), (1, 0, 3), (0, 1, 4)])
     add_anchor(obj, lambda p: p.index == 0)
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "non-manifold")
+    expect_error(bpy.ops.object.material_deform_bind, "non-manifold")
     assert snapshot(obj) == before
 
 
@@ -158,7 +158,7 @@ def test_degenerate_face():
     obj = mesh_object("Degenerate", verts, [(0, 1, 2), (1, 4, 2), (0, 3, 1)])  # last: collinear
     add_anchor(obj, lambda p: p.index == 0)
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "degenerate")
+    expect_error(bpy.ops.object.material_deform_bind, "degenerate")
     assert snapshot(obj) == before
 
 
@@ -171,12 +171,12 @@ def test_part_without_anchor():
     bpy.ops.object.join()
     add_anchor(obj, lambda p: p.center.z > 1.999 and p.center.x < 1.0)
     add_anchor(obj, lambda p: p.center.z < -1.999 and p.center.x < 1.0)
-    expect_error(bpy.ops.mesh.material_deform_bind, "no anchor")
+    expect_error(bpy.ops.object.material_deform_bind, "no anchor")
 
 
 def test_not_a_mesh_has_no_operator():
     bpy.ops.object.empty_add()
-    assert not bpy.ops.mesh.material_deform_bind.poll()
+    assert not bpy.ops.object.material_deform_bind.poll()
 
 
 def test_loose_vertices_are_ignored():
@@ -186,7 +186,7 @@ def test_loose_vertices_are_ignored():
     me.vertices[-1].co = (5, 5, 5)
     me.update()
     top, _ = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top.empty.location.x += 1
     update()
     np.testing.assert_array_equal(output(obj)[-1], [5, 5, 5])
@@ -198,13 +198,13 @@ def test_changing_anchor_mode_or_empty_after_bind_needs_rebind():
 
     obj = tube()
     top, _ = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top.mode = "ROTATION"
-    assert "Anchors changed" in session.stale_reason(obj)
-    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert "Changed since bind: anchors" in session.stale_reason(obj)
+    expect_error(bpy.ops.object.material_deform_update, "Changed since bind: anchors")
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     assert session.stale_reason(obj) == ""
     other = bpy.data.objects.new("E2", None)
     bpy.context.scene.collection.objects.link(other)
     top.empty = other
-    expect_error(bpy.ops.mesh.material_deform_update, "Anchors changed")
+    expect_error(bpy.ops.object.material_deform_update, "uses another Empty")

@@ -97,7 +97,7 @@ def _fig5_bar(aniso, axes_empty=None, swap=False):
     # the paper's anchor mode (rotation + scale only), as in its Fig. 5
     top = add_anchor(obj, lambda p: p.center.z > 1.999, mode="ROTATION")
     add_anchor(obj, lambda p: p.center.z < -1.999, mode="ROTATION")
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     return obj, top
 
 
@@ -184,10 +184,10 @@ def test_axes_empty_rotates_the_paint_axes_and_marks_stale():
     update()
     # the live handler notices (the Empty is part of the update check) and says why
     assert "Axes Empty changed" in session.stale_reason(obj)
-    expect_error(bpy.ops.mesh.material_deform_update, "Axes Empty changed")
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    expect_error(bpy.ops.object.material_deform_update, "Axes Empty changed")
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     obj.material_deform.anisotropic = False  # changing the setting marks stale too
-    expect_error(bpy.ops.mesh.material_deform_update, "Anisotropy or region changed")
+    expect_error(bpy.ops.object.material_deform_update, "region or anisotropy")
 
 
 def test_anisotropic_bind_without_per_axis_stiffness_is_refused():
@@ -195,7 +195,7 @@ def test_anisotropic_bind_without_per_axis_stiffness_is_refused():
     two_end_anchors(obj)
     obj.material_deform.anisotropic = True
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "no per-axis stiffness")
+    expect_error(bpy.ops.object.material_deform_bind, "no per-axis stiffness")
     assert snapshot(obj) == before and not obj.material_deform.bound
     expect_error(bpy.ops.mesh.material_deform_stiffness_from_paint, "Stiffness X")
     assert snapshot(obj) == before
@@ -209,7 +209,7 @@ def test_save_reload_rebuilds_anisotropic_region_bind(tmp_path):
     obj.vertex_groups["Region"].remove([v.index for v in obj.data.vertices if v.co.z < -1.5])
     obj.material_deform.region_group = "Region"
     obj.material_deform.anchors.remove(1)  # the bottom anchor is outside the region now
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top = obj.material_deform.anchors[0].empty
     top.rotation_euler = (0.7, 0.0, 0.4)
     update()

@@ -116,7 +116,7 @@ def joint_bend(learn):
         assert bpy.ops.mesh.material_deform_learn_stiffness() == {"FINISHED"}
     top = add_anchor(obj, lambda p: p.center.z > 1.999, mode="ROTATION")
     add_anchor(obj, lambda p: p.center.z < -1.999, mode="ROTATION")
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top.empty.rotation_euler.x = math.pi / 2
     update()
     tris, _ = triangles(obj)
@@ -173,7 +173,7 @@ def test_learn_anisotropic_per_axis_and_filter():
     assert phi3[joint].min() > 0.99 and phi3[:, 2].min() > 0.99
     # the learned per-axis field binds
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
 
 
 def test_learn_writes_the_color_attribute_when_that_is_the_paint_source():
@@ -219,7 +219,7 @@ def test_learn_without_poses_is_refused():
     expect_error(bpy.ops.mesh.material_deform_learn_stiffness, "No example poses")
     assert snapshot(obj) == before and len(obj.vertex_groups) == 0
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}  # Basis + own output key only
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}  # Basis + own output key only
     groups = len(obj.vertex_groups)
     before = snapshot(obj)
     expect_error(bpy.ops.mesh.material_deform_learn_stiffness, "No example poses")

@@ -24,7 +24,7 @@ def test_region_outside_bit_identical_boundary_at_rest():
     obj.material_deform.region_group = "Region"
     # one anchor is enough: the region's border holds the bar
     top = add_anchor(obj, lambda p: p.center.z > 1.999)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     r = rest(obj)
     top.empty.location.x += 1.0
     top.empty.rotation_euler.y = 0.4
@@ -52,15 +52,15 @@ def test_region_changes_mark_bind_stale():
     paint(obj, "Region", lambda v: 1.0)
     obj.material_deform.region_group = "Region"
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     obj.vertex_groups["Region"].remove([v.index for v in obj.data.vertices if v.co.z == 0.0])
     # repainting the region group: detected by the fingerprint
-    expect_error(bpy.ops.mesh.material_deform_update, "region")
-    assert bpy.ops.mesh.material_deform_reset() == {"FINISHED"}
+    expect_error(bpy.ops.object.material_deform_update, "region")
+    assert bpy.ops.object.material_deform_reset() == {"FINISHED"}
     obj.material_deform.region_group = ""
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     obj.material_deform.region_group = "Region"  # changing the setting
-    expect_error(bpy.ops.mesh.material_deform_update, "region changed")
+    expect_error(bpy.ops.object.material_deform_update, "region or anisotropy")
 
 
 def test_anchor_outside_region_is_refused():
@@ -70,8 +70,8 @@ def test_anchor_outside_region_is_refused():
     obj.vertex_groups["Region"].remove([v.index for v in obj.data.vertices if v.co.z < -1.5])
     obj.material_deform.region_group = "Region"
     before = snapshot(obj)
-    expect_error(bpy.ops.mesh.material_deform_bind, "outside the region")
+    expect_error(bpy.ops.object.material_deform_bind, "outside the region")
     assert snapshot(obj) == before and not obj.material_deform.bound
     obj.material_deform.region_group = "Nope"
-    expect_error(bpy.ops.mesh.material_deform_bind, "Region: vertex group 'Nope' not found")
+    expect_error(bpy.ops.object.material_deform_bind, "Region: vertex group 'Nope' not found")
     assert snapshot(obj) == before

@@ -29,7 +29,7 @@ def object_centroid_x(path):
 def test_background_render_follows_animated_empty(tmp_path):
     obj = tube(rings=11)
     top, _ = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     e = top.empty
     e.keyframe_insert("location", frame=1)
     e.location.x += 2.0

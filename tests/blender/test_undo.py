@@ -64,7 +64,7 @@ def key_names(obj):
 def bound_bar():
     obj = tube()
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     return obj
 
 
@@ -126,7 +126,7 @@ def test_undo_add_anchor_in_edit_mode():
     assert s.anchors[1].empty is bpy.data.objects[second_empty]
     bpy.ops.object.mode_set(mode="OBJECT")
     assert len(anchor_vertices(obj, s.anchors[1])) == 8
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}  # the redone anchor works
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}  # the redone anchor works
 
 
 def test_undo_add_anchor_while_bound_keeps_the_bind():
@@ -134,7 +134,7 @@ def test_undo_add_anchor_while_bound_keeps_the_bind():
     select_faces(obj, lambda p: abs(p.center.z - 0.1) < 0.01)  # a ring in the middle
     push("selected")
     assert run(bpy.ops.mesh.material_deform_add_anchor) == {"FINISHED"}
-    assert "Anchors changed" in session.stale_reason(obj)
+    assert "Changed since bind: anchors" in session.stale_reason(obj)
 
     obj = undo()  # in Edit Mode: the bind is valid again once we leave it
     assert obj.mode == "EDIT" and len(obj.material_deform.anchors) == 2
@@ -152,7 +152,7 @@ def test_undo_bind_unbinds_and_drops_the_solver():
     two_end_anchors(obj)
     before = rest(obj).copy()
     push("anchors")
-    assert run(bpy.ops.mesh.material_deform_bind) == {"FINISHED"}
+    assert run(bpy.ops.object.material_deform_bind) == {"FINISHED"}
     assert obj.as_pointer() in session._cache
 
     obj = undo()
@@ -178,7 +178,7 @@ def test_undo_bind_unbinds_and_drops_the_solver():
     obj = undo()
     obj = undo()
     assert not obj.material_deform.bound and top_empty(obj).location.x == 0.0
-    assert run(bpy.ops.mesh.material_deform_bind) == {"FINISHED"}  # and binding again works
+    assert run(bpy.ops.object.material_deform_bind) == {"FINISHED"}  # and binding again works
     top_empty(obj).location.x += 0.5
     update()
     np.testing.assert_allclose(output(obj)[idx, 0] - before[idx, 0], 0.5, atol=1e-5)
@@ -223,7 +223,7 @@ def test_undo_update_operator_then_live_on_recomputes():
     update()
     push("moved, live off")
     at_rest = output(obj).copy()
-    assert run(bpy.ops.mesh.material_deform_update) == {"FINISHED"}
+    assert run(bpy.ops.object.material_deform_update) == {"FINISHED"}
     moved = output(obj).copy()
     assert np.abs(moved - at_rest).max() > 0.5
 
@@ -244,12 +244,12 @@ def test_undo_reset_brings_the_deformation_back():
     obj = tube()
     before = rest(obj).copy()
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top_empty(obj).location.z += 0.7
     update()
     push("deformed")
     deformed = output(obj).copy()
-    assert run(bpy.ops.mesh.material_deform_reset) == {"FINISHED"}
+    assert run(bpy.ops.object.material_deform_reset) == {"FINISHED"}
     assert obj.data.shape_keys is None
     assert rest(obj).tobytes() == before.tobytes()
 
@@ -282,7 +282,7 @@ def test_undo_bake_removes_baked_keys():
     scene.frame_set(1)
     push("animated")
     at1 = output(obj).copy()
-    assert run(bpy.ops.mesh.material_deform_bake, frame_start=1, frame_end=3) == {"FINISHED"}
+    assert run(bpy.ops.object.material_deform_bake, frame_start=1, frame_end=3) == {"FINISHED"}
     assert all(f"MD Bake {f:04d}" in key_names(obj) for f in (1, 2, 3))
     assert obj.data.shape_keys.animation_data is not None
 
@@ -307,7 +307,7 @@ def test_undo_of_a_setting_change_clears_the_stale_verdict():
     push("bound")
     obj.material_deform.anchors[0].mode = "ROTATION"  # makes the bind stale
     push("mode")
-    assert "Anchors changed" in session.stale_reason(obj)
+    assert "Changed since bind: anchors" in session.stale_reason(obj)
 
     obj = undo()
     s = obj.material_deform
@@ -321,7 +321,7 @@ def test_undo_of_a_setting_change_clears_the_stale_verdict():
     update()
 
     obj = redo()  # stale again: no update
-    assert "Anchors changed" in session.stale_reason(obj)
+    assert "Changed since bind: anchors" in session.stale_reason(obj)
     frozen = output(obj).copy()
     top_empty(obj).location.x += 1.0
     update()
@@ -333,7 +333,7 @@ def test_redo_of_a_stiffness_change_never_uses_the_old_solver():
     paint(obj, lambda z: 1.0 if abs(z) < 0.7 else 0.0)
     assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     push("bound")
     paint(obj, lambda z: 0.0)
     push("repainted")
@@ -358,5 +358,28 @@ def test_redo_of_a_stiffness_change_never_uses_the_old_solver():
     update()
     assert output(obj).tobytes() == frozen.tobytes()
     activate(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}  # rebinding clears it
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}  # rebinding clears it
     assert session.stale_reason(obj) == ""
+
+
+def test_undo_clear_bake_and_reset_empties():
+    obj = bound_bar()
+    scene = bpy.context.scene
+    e = top_empty(obj)
+    e.keyframe_insert("location", frame=1)
+    e.location.x += 1.0
+    e.keyframe_insert("location", frame=3)
+    scene.frame_set(3)
+    push("animated")
+    assert run(bpy.ops.object.material_deform_bake, frame_start=1, frame_end=3) == {"FINISHED"}
+    assert run(bpy.ops.object.material_deform_clear_bake) == {"FINISHED"}
+    assert key_names(obj) == ["Basis", "Material Deform"] and obj.material_deform.live
+    obj = undo()  # the bake is back, Live off
+    assert "MD Bake 0003" in key_names(obj) and not obj.material_deform.live
+    obj = redo()
+    assert key_names(obj) == ["Basis", "Material Deform"] and obj.material_deform.live
+    moved = np.array(top_empty(obj).matrix_world)
+    assert run(bpy.ops.object.material_deform_reset_empties) == {"FINISHED"}
+    assert not np.allclose(np.array(top_empty(obj).matrix_world), moved)
+    obj = undo()
+    np.testing.assert_allclose(np.array(top_empty(obj).matrix_world), moved, atol=1e-6)

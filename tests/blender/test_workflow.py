@@ -94,7 +94,7 @@ def test_add_anchor_creates_group_and_oriented_empty():
 def _bound_bar(**kw):
     obj = tube(**kw)
     top, bottom = two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     return obj, top, bottom
 
 
@@ -165,7 +165,7 @@ def test_stiff_middle_bends_less_than_uniform():
                 vg.add([v.index], 1.0 if abs(v.co.z) < 0.7 else 0.0, "REPLACE")
             assert bpy.ops.mesh.material_deform_stiffness_from_paint() == {"FINISHED"}
         top, _bottom = two_end_anchors(obj)
-        assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+        assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
         top.empty.rotation_euler.x = np.pi / 2
         top.empty.location.y += 1.5
         update()
@@ -189,11 +189,11 @@ def test_reset_restores_rest_bit_for_bit():
     obj = tube()
     before = rest(obj).copy()
     two_end_anchors(obj)
-    assert bpy.ops.mesh.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     obj.material_deform.anchors[0].empty.location.z += 0.7
     update()
     assert np.abs(output(obj) - before).max() > 0.1
-    assert bpy.ops.mesh.material_deform_reset() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_reset() == {"FINISHED"}
     assert obj.data.shape_keys is None
     np.testing.assert_array_equal(rest(obj), before)
     assert evaluated(obj).tobytes() == before.tobytes()
@@ -206,10 +206,10 @@ def test_reset_keeps_users_own_shape_keys():
     smile.data[0].co.x += 0.25
     before = rest(obj).copy()
     two_end_anchors(obj)
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     obj.material_deform.anchors[0].empty.location.z += 0.7
     update()
-    bpy.ops.mesh.material_deform_reset()
+    bpy.ops.object.material_deform_reset()
     names = [k.name for k in obj.data.shape_keys.key_blocks]
     assert names == ["Basis", "Smile"]
     np.testing.assert_array_equal(rest(obj), before)
@@ -254,7 +254,7 @@ def test_rotation_only_anchor_keeps_mean_translation_free():
     obj = tube()
     top = add_anchor(obj, lambda p: p.center.z > 1.999, mode="ROTATION")
     bottom = add_anchor(obj, lambda p: p.center.z < -1.999, mode="ROTATION")
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     top.empty.location.x += 5.0  # translation is ignored in paper mode
     update()
     np.testing.assert_allclose(output(obj), rest(obj), atol=1e-5)
@@ -277,7 +277,7 @@ def test_mixed_modes_pin_only_position_anchors():
     obj = tube()
     top = add_anchor(obj, lambda p: p.center.z > 1.999, mode="POSITION")
     add_anchor(obj, lambda p: p.center.z < -1.999, mode="ROTATION")
-    bpy.ops.mesh.material_deform_bind()
+    bpy.ops.object.material_deform_bind()
     top.empty.location.x += 1.0
     update()
     idx = anchor_vertices(obj, top)
@@ -297,7 +297,7 @@ def test_animated_empty_drives_frame_change_and_bake():
     scene.frame_set(2)
     at2 = output(obj).copy()
     assert 0.05 < (at2[idx, 0] - rest(obj)[idx, 0]).mean() < 0.95
-    assert bpy.ops.mesh.material_deform_bake(frame_start=1, frame_end=3) == {"FINISHED"}
+    assert bpy.ops.object.material_deform_bake(frame_start=1, frame_end=3) == {"FINISHED"}
     keys = obj.data.shape_keys.key_blocks
     assert all(f"MD Bake {f:04d}" in keys for f in (1, 2, 3))
     assert not obj.material_deform.live and keys["Material Deform"].value == 0.0

@@ -2,7 +2,8 @@
 
 The blocks of one file run in order in one namespace (a page builds on its earlier blocks), with
 the repository root as the working directory. Blocks that import bpy run in the Blender suite
-(tests/blender/test_docs.py) instead. A block preceded by a line ``<!-- doc-test: skip REASON
+(tests/blender/test_docs.py) instead, and so do blocks that import addon_utils, bmesh or
+mathutils. A block preceded by a line ``<!-- doc-test: skip REASON
 -->`` is only shown, never run (say why in REASON).
 """
 
@@ -30,7 +31,11 @@ def python_blocks(page: Path) -> list[tuple[int, str, bool]]:
 
 
 def uses_bpy(code: str) -> bool:
-    return re.search(r"^\s*(import bpy|from bpy)", code, re.M) is not None
+    """True for a block that needs Blender (bpy or another module only Blender has)."""
+    return (
+        re.search(r"^\s*(import|from)\s+(bpy|addon_utils|bmesh|mathutils)\b", code, re.M)
+        is not None
+    )
 
 
 def run_page(page: Path, want_bpy: bool) -> int:

@@ -30,13 +30,17 @@ class Method:
     Class attributes:
       key          enum identifier (never change it)
       number       enum value: Blender saves this integer in the .blend (never change it)
-      label        shown in the Method menu
+      label        shown in the Method menu (short: the panel shows it at the sidebar's
+                   default width; tests/blender/test_ui.py checks that it fits)
       description  tooltip
       anchor_modes anchor modes this method understands (BindError for others)
       iterative    True: ``solve`` takes an iteration budget and warm-starts from ``state``
       settings_name / settings_class
                    the method's own PropertyGroup, registered as
-                   ``obj.material_deform.<settings_name>`` (None: no settings of its own)
+                   ``obj.material_deform.<settings_name>`` (None: no settings of its own).
+                   Settings the bind depends on go in ``fingerprint`` and get
+                   ``update=properties._settings_changed``: the session then compares the
+                   object with its bound state (changing a setting back makes the bind valid)
     """
 
     key = ""
@@ -79,7 +83,9 @@ class Method:
         session sees (raise BindError to stop updating)."""
 
     def draw(self, layout, obj) -> None:
-        """The method's own settings, drawn below the common panel controls."""
+        """The method's own settings, drawn below the common panel controls (in the Deform
+        subpanel, at the sidebar's default width: short labels, a search field's label on a
+        line of its own)."""
 
     def live_budget(self, obj) -> int | None:
         """Iterations per live update (iterative methods), None to converge every update."""

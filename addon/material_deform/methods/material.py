@@ -49,7 +49,7 @@ def bound_axes(obj) -> np.ndarray | None:
     try:  # stored as float32: back to an exact rotation for the solver
         return amap.nearest_rotation(np.array(tuple(s.bind_axes)).reshape(3, 3))
     except (ValueError, np.linalg.LinAlgError) as exc:
-        raise BindError("Stored anisotropy axes are invalid - click Bind again") from exc
+        raise BindError("Stored anisotropy axes are invalid - click Rebind") from exc
 
 
 def stored_axis_bend(obj, a: bridge.MeshArrays) -> np.ndarray:
@@ -109,10 +109,10 @@ def check_anchors_in_region(region, anchor_faces, names) -> None:
 class MaterialMethod(Method):
     key = "MATERIAL"
     number = 0
-    label = "Material-aware (Popa 2006)"
+    label = "Material-aware"
     description = (
-        "Blend the anchors' transforms by the painted bending stiffness and place the shear "
-        "in the soft parts (direct solve, every update exact)"
+        "Popa, Julius and Sheffer 2006: blend the anchors' transforms by the painted bending "
+        "stiffness and place the shear in the soft parts (direct solve, every update exact)"
     )
     anchor_modes = frozenset({am.POSITION, am.ROTATION})
 
@@ -187,7 +187,7 @@ class MaterialMethod(Method):
             return
         now_axes = axes(obj, depsgraph)
         if now_axes is None or not np.allclose(now_axes, bound_axes(obj), atol=1e-6):
-            raise BindError("Axes Empty changed since bind - click Bind again")
+            raise BindError("Axes Empty changed since bind - click Rebind")
         entry.state["axes_checked"] = key
 
     def draw(self, layout, obj) -> None:
@@ -196,10 +196,12 @@ class MaterialMethod(Method):
         if s.anisotropic:
             layout.prop(s, "axes_empty")
             if s.stiffness_source == "VERTEX_GROUP":
-                layout.label(text=f"paint '{s.stiffness_group} X' / Y / Z per rotation axis")
+                layout.label(text="Paint one group per axis:")
+                layout.label(text=f"{s.stiffness_group} X / Y / Z")
             else:
-                layout.label(text="paint R / G / B per rotation axis x / y / z")
-        layout.prop_search(s, "region_group", obj, "vertex_groups", icon="SELECT_SET")
+                layout.label(text="Paint R / G / B = x / y / z")
+        layout.label(text="Deform Only (vertex group):")
+        layout.prop_search(s, "region_group", obj, "vertex_groups", text="", icon="SELECT_SET")
 
 
 register_method(MaterialMethod())

@@ -1,0 +1,80 @@
+"""The .pc2 point cache format (no bpy): what Blender's Mesh Cache modifier reads.
+
+Layout (little-endian): ``char[12] "POINTCACHE2\\0"``, ``int32 version = 1``, ``int32 points``,
+``float32 start frame``, ``float32 sample rate`` (frames between samples), ``int32 samples``,
+then ``samples * points * 3`` float32 coordinates, sample after sample.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+
+import numpy as np
+
+MAGIC = b"POINTCACHE2\0"
+_HEAD = struct.Struct("<12siiffi")
+
+
+class PC2Writer:
+    """Write ``samples`` frames of ``points`` positions to ``path`` atomically: the frames go
+    to a temporary file next to it, renamed over ``path`` only when every frame was written
+    (an error or an interrupted bake leaves an existing cache as it was)."""
+
+    def __init__(self, path: str, points: int, samples: int, start: float, rate: float = 1.0):
+        if points <= 0 or samples <= 0:
+            raise ValueError("points and samples: must be > 0")
+        self.path, self.points, self.samples = path, int(points), int(samples)
+        self.tmp = f"{path}.tmp{os.getpid()}"
+        self.written = 0
+        self._f = open(self.tmp, "wb")  # noqa: SIM115 (closed in close / __exit__)
+        self._f.write(_HEAD.pack(MAGIC, 1, self.points, float(start), float(rate), self.samples))
+
+    def add(self, positions) -> None:
+        """positions: (points,3) for the next frame."""
+        p = np.ascontiguousarray(positions, dtype="<f4")
+        if p.shape != (self.points, 3):
+            raise ValueError(f"positions: expected ({self.points}, 3), got {p.shape}")
+        if self.written >= self.samples:
+            raise ValueError(f"positions: all {self.samples} samples already written")
+        self._f.write(p.tobytes())
+        self.written += 1
+
+    def close(self) -> None:
+        self._f.close()
+        if self.written != self.samples:
+            os.unlink(self.tmp)
+            raise ValueError(f"only {self.written} of {self.samples} samples were written")
+        os.replace(self.tmp, self.path)
+
+    def abort(self) -> None:
+        self._f.close()
+        if os.path.exists(self.tmp):
+            os.unlink(self.tmp)
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, exc_type, _exc, _tb):
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
+        return False
+
+
+def read_pc2(path: str) -> tuple[float, float, np.ndarray]:
+    """(start frame, sample rate, positions (samples, points, 3) float32)."""
+    with open(path, "rb") as f:
+        head = f.read(_HEAD.size)
+        if len(head) != _HEAD.size:
+            raise ValueError(f"{path}: too short for a .pc2 header")
+        magic, _version, points, start, rate, samples = _HEAD.unpack(head)
+        if magic != MAGIC:
+            raise ValueError(f"{path}: not a .pc2 file")
+        data = np.frombuffer(f.read(), dtype="<f4")
+    if data.size != samples * points * 3:
+        raise ValueError(
+            f"{path}: holds {data.size} floats, the header says {samples * points * 3}"
+        )
+    return start, rate, data.reshape(samples, points, 3)
