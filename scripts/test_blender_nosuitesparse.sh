@@ -32,7 +32,7 @@ VERSION="$(sed -n 's/^version = "\(.*\)"/\1/p' addon/material_deform/blender_man
 ZIP="dist/material_deform-$VERSION.zip"
 SYSTEM_WHEEL="$(ls build/addon/system/matdeform-*.whl 2>/dev/null | head -n1)"
 [[ -f "$ZIP" && -n "$SYSTEM_WHEEL" ]] || {
-  echo "no $ZIP or build/addon/system/*.whl: run scripts/build_addon.sh first" >&2
+  echo "no $ZIP or build/addon/system/*.whl: run scripts/build_addon.sh (not MD_SYSTEM_LIBS=1)" >&2
   exit 2
 }
 BPY_HOST="${BPY_PYTHON:-.venv-bpy/bin/python}"
