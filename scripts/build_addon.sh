@@ -78,6 +78,7 @@ echo "wheel: $WHEEL"
 
 "$PY" - "$ROOT" "$WHEEL" "$BUILD" <<'PYEOF'
 import ctypes
+import json
 import re
 import shutil
 import sys
@@ -110,6 +111,28 @@ if "manylinux" in wheel.name:
     assert lib.openblas_get_parallel() == 0 and "DYNAMIC_ARCH" in config, config
     print(f"bundled {blas[0].name}: {config}")
 
+# Shipping those libraries means shipping their licences: the copyright file of every Debian
+# package auditwheel took a library from (its SBOM names them), in licenses/ of both zips.
+licenses = build / "licenses"
+sboms = list((legacy / "_vendor").glob("*.dist-info/sboms/auditwheel.cdx.json"))
+if sboms:
+    licenses.mkdir()
+    debs = sorted(
+        {c["name"] for c in json.loads(sboms[0].read_text())["components"]
+         if c.get("purl", "").startswith("pkg:deb/")}
+    )  # fmt: skip
+    for deb in debs:
+        shutil.copy(Path("/usr/share/doc") / deb / "copyright", licenses / f"{deb}.copyright")
+    (licenses / "README.txt").write_text(
+        "The native core (matdeform.libs) bundles libraries of these Debian 12 packages:\n"
+        + "".join(f"  {d}\n" for d in debs)
+        + "Their copyright and licence terms are in the files next to this one; exact versions\n"
+        "are in the wheel's SBOM (matdeform-*.dist-info/sboms/auditwheel.cdx.json). Their\n"
+        "sources are in Debian's archive: https://snapshot.debian.org/ (by package and version).\n"
+    )
+    shutil.copytree(licenses, legacy / "licenses")
+    print(f"licences of {len(debs)} bundled packages: {', '.join(debs)}")
+
 # extension: manifest at the root, wheel under wheels/
 ext = build / "extension"
 shutil.copytree(src, ext, ignore=skip)
@@ -133,6 +156,8 @@ listed = ", ".join(f'"{p}"' for p in sorted(platforms))
 manifest = re.sub(r"^platforms = .*$", f"platforms = [{listed}]", manifest, flags=re.M)
 print(f"extension platforms: {sorted(platforms)}")
 (ext / "blender_manifest.toml").write_text(manifest)
+if licenses.exists():
+    shutil.copytree(licenses, ext / "licenses")
 
 out = root / "dist" / f"material_deform-{version}-legacy.zip"
 with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
