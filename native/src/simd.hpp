@@ -5,21 +5,113 @@
 // while explicit vector types give one ymm FMA per factor entry, about 35 % less time for the
 // substitution on the project's VM. A kernel body is written once as an always-inline function
 // and instantiated inside two wrappers, so each copy is compiled for its wrapper's ISA.
+//
+// Vec4d is chosen at compile time:
+//   - GCC and Clang: their vector extension (one ymm register with AVX2, two xmm or NEON
+//     registers otherwise); on x86-64 the AVX2+FMA copies are added and dispatched.
+//   - any other compiler (MSVC), or MATDEFORM_PORTABLE_SIMD defined (the CMake option of the
+//     same name, which the test command builds once): a plain struct of four doubles with the
+//     same operators, left to the optimiser, and no AVX2 copies.
 #pragma once
 
-#if defined(__x86_64__) && defined(__GNUC__)
+#include <cstdint>
+#include <cstring>
+
+#if (defined(__GNUC__) || defined(__clang__)) && !defined(MATDEFORM_PORTABLE_SIMD)
+#define MD_VECTOR_EXT 1
+#else
+#define MD_VECTOR_EXT 0
+#endif
+
+#if MD_VECTOR_EXT && defined(__x86_64__)
 #define MD_X86_DISPATCH 1
 #define MD_TARGET_AVX2 __attribute__((target("avx2,fma")))
 #else
 #define MD_X86_DISPATCH 0
 #define MD_TARGET_AVX2
 #endif
+
+#if defined(__GNUC__) || defined(__clang__)
 #define MD_ALWAYS_INLINE inline __attribute__((always_inline))
+#define MD_MAY_ALIAS __attribute__((may_alias))
+#elif defined(_MSC_VER)
+#define MD_ALWAYS_INLINE __forceinline
+#define MD_MAY_ALIAS
+#else
+#define MD_ALWAYS_INLINE inline
+#define MD_MAY_ALIAS
+#endif
 
 namespace matdeform {
 
+#if MD_VECTOR_EXT
+
 // Four doubles (x, y, z, pad), unaligned and allowed to alias double arrays.
 typedef double Vec4d __attribute__((vector_size(32), aligned(8), may_alias));
+// Their bit patterns, for building doubles from integer fields (exp4): a cast between the two,
+// (Vec4u)x, keeps the bits.
+typedef std::uint64_t Vec4u __attribute__((vector_size(32), aligned(8)));
+
+#else
+
+// The same operators as GCC's vector types: lane-wise, a scalar operand applies to every lane,
+// and braces initialise the lanes ({0, 0, 0, 0}). Standard layout, alignment of a double, so
+// that double arrays can be read as Vec4d exactly as with the vector extension.
+template <class T>
+struct MD_MAY_ALIAS Lanes4 {
+  typedef T Scalar;  // a non-deduced operand type: vec + 1 converts the 1 to the lane type
+  T v[4];
+  T& operator[](int i) { return v[i]; }
+  const T& operator[](int i) const { return v[i]; }
+  // (Vec4u)x keeps the bits, as a cast between GCC vector types of one size does. A conversion
+  // function, not a constructor: the struct stays an aggregate, so braces still initialise it.
+  template <class U>
+  explicit operator Lanes4<U>() const {
+    static_assert(sizeof(U) == sizeof(T), "a bit cast needs lanes of one size");
+    Lanes4<U> out;
+    std::memcpy(&out, v, sizeof out);
+    return out;
+  }
+};
+
+#define MD_LANES4_OP(op)                                                                     \
+  template <class T>                                                                         \
+  MD_ALWAYS_INLINE Lanes4<T> operator op(const Lanes4<T>& a, const Lanes4<T>& b) {           \
+    return {{a.v[0] op b.v[0], a.v[1] op b.v[1], a.v[2] op b.v[2], a.v[3] op b.v[3]}};       \
+  }                                                                                          \
+  template <class T>                                                                         \
+  MD_ALWAYS_INLINE Lanes4<T> operator op(const Lanes4<T>& a, typename Lanes4<T>::Scalar s) { \
+    return {{a.v[0] op s, a.v[1] op s, a.v[2] op s, a.v[3] op s}};                           \
+  }                                                                                          \
+  template <class T>                                                                         \
+  MD_ALWAYS_INLINE Lanes4<T> operator op(typename Lanes4<T>::Scalar s, const Lanes4<T>& a) { \
+    return {{s op a.v[0], s op a.v[1], s op a.v[2], s op a.v[3]}};                           \
+  }                                                                                          \
+  template <class T>                                                                         \
+  MD_ALWAYS_INLINE Lanes4<T>& operator op##=(Lanes4<T>& a, const Lanes4<T>& b) {             \
+    return a = a op b;                                                                       \
+  }                                                                                          \
+  template <class T>                                                                         \
+  MD_ALWAYS_INLINE Lanes4<T>& operator op##=(Lanes4<T>& a, typename Lanes4<T>::Scalar s) {   \
+    return a = a op s;                                                                       \
+  }
+MD_LANES4_OP(+)
+MD_LANES4_OP(-)
+MD_LANES4_OP(*)
+#undef MD_LANES4_OP
+
+template <class T>
+MD_ALWAYS_INLINE Lanes4<T> operator<<(const Lanes4<T>& a, int n) {
+  return {{a.v[0] << n, a.v[1] << n, a.v[2] << n, a.v[3] << n}};
+}
+
+typedef Lanes4<double> Vec4d;
+typedef Lanes4<std::uint64_t> Vec4u;
+
+#endif
+
+static_assert(sizeof(Vec4d) == 4 * sizeof(double) && alignof(Vec4d) == alignof(double),
+              "Vec4d must overlay four doubles of an array");
 
 // True when the AVX2+FMA builds are to be used: the CPU runs them (checked once) and they are
 // not switched off.
@@ -27,5 +119,8 @@ bool cpu_has_avx2_fma();
 
 // Tests only: false makes every kernel take its baseline build. Returns the previous setting.
 bool set_avx2_kernels_enabled(bool enabled);
+
+// Which Vec4d this build uses: "vector extension" or "portable".
+const char* simd_path();
 
 }  // namespace matdeform

@@ -13,9 +13,16 @@
 
 #include "matdeform/threads.hpp"
 
-#if defined(__x86_64__) || defined(__i386__)
+// A hint that this thread is spinning: pause on x86 (GCC/Clang and MSVC spell the platform
+// differently), yield on Arm; a real yield elsewhere.
+#if defined(__x86_64__) || defined(__i386__) || defined(_M_X64) || defined(_M_IX86)
 #include <immintrin.h>
 #define MD_CPU_RELAX() _mm_pause()
+#elif defined(__aarch64__) && (defined(__GNUC__) || defined(__clang__))
+#define MD_CPU_RELAX() __asm__ __volatile__("yield")
+#elif defined(_M_ARM64)
+#include <intrin.h>
+#define MD_CPU_RELAX() __yield()
 #else
 #define MD_CPU_RELAX() std::this_thread::yield()
 #endif

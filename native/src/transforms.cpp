@@ -79,7 +79,6 @@ constexpr ExpSeries make_exp_series() {
 }
 constexpr ExpSeries kExp = make_exp_series();
 MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
-  typedef unsigned long long Vec4u __attribute__((vector_size(32), aligned(8)));
   constexpr double kInvLn2 = 1.44269504088896338700e+00, kLn2Hi = 6.93147180369123816490e-01,
                    kLn2Lo = 1.90821492927058770002e-10;
   constexpr double kShifter = 6755399441055744.0;  // 1.5 * 2^52: adding it rounds to an integer
@@ -90,7 +89,7 @@ MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
   Vec4d p = r * kExp.c[kExpTerms - 1] + kExp.c[kExpTerms - 2];
   for (int k = kExpTerms - 3; k >= 0; --k) p = p * r + kExp.c[k];
   // 2^n built from its bits: the integer n is t's bit pattern minus the shifter's. (A cast
-  // between GCC vector types of one size keeps the bits.)
+  // between Vec4d and Vec4u keeps the bits, simd.hpp.)
   const Vec4u biased = (Vec4u)t - (Vec4u)shifter + 1023;  // unsigned: wraps, never UB
   p *= (Vec4d)(biased << 52);
   for (int l = 0; l < 4; ++l) {

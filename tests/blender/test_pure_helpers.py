@@ -1,8 +1,12 @@
-"""bpy-free helpers of the add-on (stiffness mapping, anchor maths)."""
+"""bpy-free helpers of the add-on (stiffness mapping, anchor maths, platform check)."""
+
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 from material_deform import anchor_math as am
+from material_deform import platform_check as pc
 from material_deform import stiffness_map as sm
 
 
@@ -87,3 +91,55 @@ def test_affine_inverse_inverts_and_rejects_zero_scale():
         np.linalg.inv(m[0]) @ m[2] @ np.linalg.inv(m[4]) @ m[0],
         atol=1e-9,
     )
+
+
+LINUX = {"python": (3, 11), "implementation": "cpython", "os": "linux", "machine": "x86_64"}
+LINUX["glibc"] = (2, 36)
+
+
+def test_platform_check_reads_the_tags_of_either_zip(tmp_path):
+    assert pc.wheel_tags(str(tmp_path)) == []  # a source tree: nothing to check
+    ext = tmp_path / "ext" / "wheels"
+    ext.mkdir(parents=True)
+    (ext / "matdeform-0.1.0-cp311-cp311-manylinux_2_17_x86_64.manylinux2014_x86_64.whl").touch()
+    assert pc.wheel_tags(str(ext.parent)) == [
+        "cp311-cp311-manylinux_2_17_x86_64",
+        "cp311-cp311-manylinux2014_x86_64",
+    ]
+    info = tmp_path / "legacy" / "_vendor" / "matdeform-0.1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "WHEEL").write_text("Wheel-Version: 1.0\nTag: cp313-cp313-linux_x86_64\n")
+    assert pc.wheel_tags(str(tmp_path / "legacy")) == ["cp313-cp313-linux_x86_64"]
+
+
+def test_platform_check_accepts_only_what_the_core_was_built_for():
+    ok = ["cp311-cp311-manylinux_2_35_x86_64"]
+    assert pc.problem(ok, LINUX) is None
+    assert pc.problem([], LINUX) is None
+    assert pc.problem(["cp311-cp311-linux_x86_64"], LINUX) is None  # MD_SYSTEM_LIBS build
+    assert pc.problem(["cp311-cp311-manylinux2014_x86_64"], {**LINUX, "glibc": (2, 17)}) is None
+    old = pc.problem(ok, {**LINUX, "glibc": (2, 31)})
+    assert "Linux x86-64 (glibc 2.35 or newer)" in old and "glibc 2.31" in old, old
+    py = pc.problem(ok, {**LINUX, "python": (3, 13)})
+    assert "built for CPython 3.11" in py and "Python 3.13" in py, py
+    assert pc.problem(ok, {**LINUX, "machine": "aarch64"}) is not None
+    assert pc.problem(ok, {**LINUX, "glibc": None}) is not None  # musl
+    win = {**LINUX, "os": "win32", "machine": "amd64", "glibc": None}
+    assert "this Blender has Python 3.11 on Windows x86-64" in pc.problem(ok, win)
+    assert pc.problem(["cp311-cp311-win_amd64"], win) is None
+    mac = {**LINUX, "os": "darwin", "machine": "arm64", "glibc": None}
+    assert pc.problem(["cp311-cp311-macosx_11_0_universal2"], mac) is None
+    assert pc.problem(["cp311-cp311-macosx_11_0_x86_64"], mac) is not None
+    assert pc.problem(["cp38-abi3-manylinux_2_35_x86_64"], LINUX) is None
+    assert pc.problem(["cp312-abi3-manylinux_2_35_x86_64"], LINUX) is not None
+
+
+def test_platform_check_here_passes_for_the_built_zips():
+    """The zips built on this machine (scripts/build_addon.sh) carry a core that runs here."""
+    here = pc.current()
+    assert here["python"] == sys.version_info[:2] and here["os"] == sys.platform
+    legacy = Path(__file__).resolve().parents[2] / "build" / "addon" / "legacy" / "material_deform"
+    tags = pc.wheel_tags(str(legacy))
+    if not tags:
+        pytest.skip(f"{legacy} not built (run scripts/build_addon.sh)")
+    assert pc.problem(tags, here) is None, pc.problem(tags, here)
