@@ -30,4 +30,8 @@ std::vector<int> face_components(int num_faces, const IndexPairs& pairs, int* co
 // Twice the area of each face, length m.
 Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces);
 
+// Undirected mesh edges (a, b), a < b, one row per edge used by any face, sorted
+// lexicographically: the order per-edge arrays (edge weights) use.
+IndexPairs mesh_edges(const Faces& faces);
+
 }  // namespace matdeform
