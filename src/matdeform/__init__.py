@@ -1,9 +1,11 @@
-"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006).
+"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006) and edge-based
+iterative material deformation (cloth, membranes, shells).
 
-numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
+numpy in, numpy out; the solvers are a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
 
 from .deformer import MaterialDeformer
+from .edge import EdgeDeformer
 from .frames import deformation_gradients
 from .learn import (
     learn_distortions,
@@ -12,7 +14,13 @@ from .learn import (
     smooth_distortions,
     stiffness_from_distortion,
 )
-from .mesh import boundary_and_nonmanifold_edges, dual_edges, face_components, faces_inside
+from .mesh import (
+    boundary_and_nonmanifold_edges,
+    dual_edges,
+    face_components,
+    faces_inside,
+    mesh_edges,
+)
 from .obj import read_obj, write_obj
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
@@ -22,6 +30,7 @@ from .weights import harmonic_weights
 __version__ = "0.1.0"
 
 __all__ = [
+    "EdgeDeformer",
     "MaterialDeformer",
     "bend_from_shear",
     "bend_from_vertex",
@@ -35,6 +44,7 @@ __all__ = [
     "num_threads",
     "learn_distortions",
     "learn_stiffness",
+    "mesh_edges",
     "polar_decompose",
     "read_obj",
     "rotation_spread",
