@@ -18,10 +18,10 @@ def edge_faces(F):
 
 def frame(xi, xj, xl, xm):
     """Columns l, n, l x n of the edge (i, j) between faces (i, j, l) and (j, i, m)."""
-    l = (xi - xj) / np.linalg.norm(xi - xj)
+    e = (xi - xj) / np.linalg.norm(xi - xj)
     n = np.cross(xj - xi, xl - xi) + np.cross(xi - xj, xm - xj)
     n = n / np.linalg.norm(n)
-    return np.column_stack([l, n, np.cross(l, n)])
+    return np.column_stack([e, n, np.cross(e, n)])
 
 
 def terms(V, F, stretch, bend, edge_weight=None, direction=None):
@@ -54,18 +54,18 @@ def terms(V, F, stretch, bend, edge_weight=None, direction=None):
             "sigma": None,
         }
         if len(fl) == 2 and fl[0][3] != fl[1][3]:
-            _, i, j, l = fl[0]
+            _, i, j, o = fl[0]  # o, m: the two opposite vertices (l, m in the paper)
             m = fl[1][3]
-            R = frame(V[i], V[j], V[l], V[m])
+            R = frame(V[i], V[j], V[o], V[m])
             n = R[:, 1]
             P = np.eye(3) - np.outer(n, n)
             # sigma = x_j - x_m + alpha (x_i - x_j) - beta (x_l - x_m), tangential part -> 0
-            A = np.column_stack([P @ (V[i] - V[j]), -(P @ (V[l] - V[m]))])
+            A = np.column_stack([P @ (V[i] - V[j]), -(P @ (V[o] - V[m]))])
             res = lsq_linear(A, -(P @ (V[j] - V[m])), bounds=(0.0, 1.0), tol=1e-14)
             alpha, beta = res.x
-            sig = alpha * V[i] + (1 - alpha) * V[j] - beta * V[l] - (1 - beta) * V[m]
+            sig = alpha * V[i] + (1 - alpha) * V[j] - beta * V[o] - (1 - beta) * V[m]
             t["sigma"] = {
-                "verts": (i, j, l, m),
+                "verts": (i, j, o, m),
                 "coef": np.array([alpha, 1 - alpha, -beta, beta - 1]),
                 "c": bend * w[e] * kappa[e],
                 "local": R.T @ sig,  # rest sigma in the rest edge frame
@@ -74,8 +74,20 @@ def terms(V, F, stretch, bend, edge_weight=None, direction=None):
     return out, kappa
 
 
-def iterate(V, F, X, constrained, positions, stretch, bend, p_stretch=1.0, p_bend=1.0,
-            gravity=(0, 0, 0), edge_weight=None, direction=None):
+def iterate(
+    V,
+    F,
+    X,
+    constrained,
+    positions,
+    stretch,
+    bend,
+    p_stretch=1.0,
+    p_bend=1.0,
+    gravity=(0, 0, 0),
+    edge_weight=None,
+    direction=None,
+):
     """One E-M iteration from the iterate X (n,3): returns the new iterate (n,3)."""
     n = len(V)
     ts, _ = terms(V, F, stretch, bend, edge_weight, direction)
@@ -95,9 +107,9 @@ def iterate(V, F, X, constrained, positions, stretch, bend, p_stretch=1.0, p_ben
         add((a, b), [1.0, -1.0], t["c_rho"], (1 - p_stretch) * cur + p_stretch * rot)
         s = t["sigma"]
         if s is not None:
-            i, j, l, m = s["verts"]
-            cur_s = s["coef"] @ X[[i, j, l, m]]
-            rot_s = frame(X[i], X[j], X[l], X[m]) @ s["local"]
+            i, j, o, m = s["verts"]
+            cur_s = s["coef"] @ X[[i, j, o, m]]
+            rot_s = frame(X[i], X[j], X[o], X[m]) @ s["local"]
             add(s["verts"], s["coef"], s["c"], (1 - p_bend) * cur_s + p_bend * rot_s)
     B += 0.5 * np.asarray(gravity, float)[None, :]
     c = np.asarray(constrained)

@@ -58,9 +58,11 @@ def fig2a(n=20):
 
 def edge_strain(v, f, x):
     e = md.mesh_edges(f)
-    return np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1) / np.linalg.norm(
-        v[e[:, 0]] - v[e[:, 1]], axis=1
-    ) - 1.0
+    return (
+        np.linalg.norm(x[e[:, 0]] - x[e[:, 1]], axis=1)
+        / np.linalg.norm(v[e[:, 0]] - v[e[:, 1]], axis=1)
+        - 1.0
+    )
 
 
 # ----------------------------------------------------------------------------- against a reference
@@ -211,21 +213,23 @@ def test_response_p_acts_like_scaling_lambda_and_mu_without_refactoring():
 
 
 def test_gravity_sags_a_sheet_pinned_at_its_centre_along_g():
+    R = rotation([1.0, 2.0, 0.5], 0.8)  # any orientation: sheet and gravity turned together
     v, f = grid(16, 16)
+    v = v @ R.T
     c = [len(v) // 2]
-    g_dir = np.array([0.3, -0.2, -1.0]) / np.linalg.norm([0.3, -0.2, -1.0])
+    g_dir = R @ np.array([0.0, 0.0, -1.0])
     d = md.EdgeDeformer(v, f, c, stretch=0.1)
     assert np.abs(d.solve(v[c], iterations=50, tol=0) - v).max() < 1e-12
     sag = []
-    for s in (2e-5, 1e-4, 5e-4):
+    for s in (1e-4, 5e-4, 2e-3):
         x = d.solve(v[c], iterations=3000, tol=1e-8, gravity=s * g_dir)
         assert d.last_iterations < 3000
-        u = x - v
-        along = u @ g_dir
+        along = (x - v) @ g_dir
         sag.append(along.mean())
         assert along.min() > -1e-9  # nothing rises against gravity
-        assert np.abs(u[c]).max() == 0.0
-    assert 0.01 < sag[0] and sag[0] * 2 < sag[1] and sag[1] * 1.5 < sag[2]
+        assert np.abs(x[c] - v[c]).max() == 0.0
+    # measured: 0.189, 0.412, 0.835
+    assert 0.05 < sag[0] and 1.5 * sag[0] < sag[1] and 1.5 * sag[1] < sag[2]
     assert d.factorizations == 1
 
 
