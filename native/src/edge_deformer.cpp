@@ -4,12 +4,14 @@
 #include <Eigen/SparseCore>
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <numeric>
 #include <stdexcept>
 #include <string>
 
 #include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
 #include "simd.hpp"
 #include "sparse_cholesky.hpp"
 #include "task_pool.hpp"
@@ -100,7 +102,6 @@ struct EdgeGroup {
 struct EstimateArgs {
   const EdgeGroup* groups;
   const Vec4d* P;  // positions by slot
-  Vec4d* T;        // out: 2 per edge, stretch then bend target, stiffness included
   double p_rho, p_sig;
 };
 
@@ -120,17 +121,18 @@ MD_ALWAYS_INLINE void load_soa(const Vec4d* P, const int* idx, Vec4d* x, Vec4d* 
   *z = __builtin_shuffle(t0, t2, Vec4l{2, 3, 6, 7});
 }
 
-// x, y, z of four -> rows (x, y, z, 0) at out[0], out[2], out[4], out[6].
-MD_ALWAYS_INLINE void store_aos(const Vec4d& x, const Vec4d& y, const Vec4d& z, Vec4d* out) {
+// Adds (x_k, y_k, z_k, 0) to row idx[k] of Y, k = 0..3 in order (rows may repeat).
+MD_ALWAYS_INLINE void add_aos(const Vec4d& x, const Vec4d& y, const Vec4d& z, const int* idx,
+                              Vec4d* Y) {
   const Vec4d zero = {0, 0, 0, 0};
   const Vec4d t0 = __builtin_shuffle(x, y, Vec4l{0, 4, 2, 6});     // x0 y0 x2 y2
   const Vec4d t1 = __builtin_shuffle(x, y, Vec4l{1, 5, 3, 7});     // x1 y1 x3 y3
   const Vec4d t2 = __builtin_shuffle(z, zero, Vec4l{0, 4, 2, 6});  // z0 0 z2 0
   const Vec4d t3 = __builtin_shuffle(z, zero, Vec4l{1, 5, 3, 7});
-  out[0] = __builtin_shuffle(t0, t2, Vec4l{0, 1, 4, 5});
-  out[2] = __builtin_shuffle(t1, t3, Vec4l{0, 1, 4, 5});
-  out[4] = __builtin_shuffle(t0, t2, Vec4l{2, 3, 6, 7});
-  out[6] = __builtin_shuffle(t1, t3, Vec4l{2, 3, 6, 7});
+  Y[idx[0]] += __builtin_shuffle(t0, t2, Vec4l{0, 1, 4, 5});
+  Y[idx[1]] += __builtin_shuffle(t1, t3, Vec4l{0, 1, 4, 5});
+  Y[idx[2]] += __builtin_shuffle(t0, t2, Vec4l{2, 3, 6, 7});
+  Y[idx[3]] += __builtin_shuffle(t1, t3, Vec4l{2, 3, 6, 7});
 }
 
 MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
@@ -149,7 +151,9 @@ MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
 // (x_j - x_i) x (x_i - x_l) + (x_i - x_j) x (x_m - x_j) = (x_j - x_i) x (x_l - x_m), the sum of
 // the two faces' area-weighted normals. A collapsed edge takes its rest direction; an edge
 // whose normal vanishes (faces folded onto each other) gets no bending pull this iteration.
-MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge) {
+// The targets go straight into the right-hand side of the measure step (Eq. 11), D^T c target
+// per edge, scattered into Y (rows by slot; rows of fixed vertices are scratch).
+MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d* Y) {
   for (int g = gb; g < ge; ++g) {
     const EdgeGroup& t = a.groups[g];
     Vec4d xi, yi, zi, xj, yj, zj, xl, yl, zl, xm, ym, zm;
@@ -170,8 +174,7 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge) {
     const Vec4d lz = has_dir ? dz * inv : MD_LD4(t.r0[2]);
     const Vec4d cr = MD_LD4(t.c_rho);
     const Vec4d k1 = cr * (1.0 - a.p_rho), k2 = cr * rl * a.p_rho;
-    Vec4d* out = a.T + 8 * static_cast<size_t>(g);
-    store_aos(k1 * dx + k2 * lx, k1 * dy + k2 * ly, k1 * dz + k2 * lz, out);
+    const Vec4d tx = k1 * dx + k2 * lx, ty = k1 * dy + k2 * ly, tz = k1 * dz + k2 * lz;
 
     const Vec4d al = MD_LD4(t.alpha), be = MD_LD4(t.beta);
     const Vec4d sx = al * xi + (one - al) * xj - be * xl - (one - be) * xm;
@@ -191,32 +194,20 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge) {
     const Vec4d rx = good ? sl * lx + sn * nx + sb * bx : cs * sx;
     const Vec4d ry = good ? sl * ly + sn * ny + sb * by : cs * sy;
     const Vec4d rz = good ? sl * lz + sn * nz + sb * bz : cs * sz;
-    store_aos(k3 * sx + a.p_sig * rx, k3 * sy + a.p_sig * ry, k3 * sz + a.p_sig * rz, out + 1);
+    const Vec4d ux = k3 * sx + a.p_sig * rx, uy = k3 * sy + a.p_sig * ry,
+                uz = k3 * sz + a.p_sig * rz;
+    // D_rho^T t = (t, -t) on (i, j); D_sig^T u = (alpha, 1 - alpha, -beta, beta - 1) u.
+    const Vec4d am = one - al, bm = be - one;
+    add_aos(tx + al * ux, ty + al * uy, tz + al * uz, t.i, Y);
+    add_aos(am * ux - tx, am * uy - ty, am * uz - tz, t.j, Y);
+    add_aos(-be * ux, -be * uy, -be * uz, t.l, Y);
+    add_aos(bm * ux, bm * uy, bm * uz, t.m, Y);
   }
 }
-void estimate_base(const EstimateArgs& a, int b, int e) { estimate_body(a, b, e); }
-MD_TARGET_AVX2 void estimate_avx2(const EstimateArgs& a, int b, int e) { estimate_body(a, b, e); }
-
-struct GatherArgs {
-  const int* ptr;     // free row -> [ptr[r], ptr[r+1]) entries
-  const int* target;  // entry -> target index (into T)
-  const double* coef;
-  const Vec4d* T;
-  const Vec4d* b0;  // constant part per row (constraint coupling, gravity)
-  Vec4d* Y;         // out: right-hand side rows
-};
-
-// Right-hand side of the measure step (Eq. 11): row r is b0_r + sum of coef * target over the
-// stencil entries of its vertex. Gather form, so rows can be split over threads without races.
-MD_ALWAYS_INLINE void gather_body(const GatherArgs& a, int b, int e) {
-  for (int r = b; r < e; ++r) {
-    Vec4d y = a.b0[r];
-    for (int s = a.ptr[r]; s < a.ptr[r + 1]; ++s) y += a.coef[s] * a.T[a.target[s]];
-    a.Y[r] = y;
-  }
+void estimate_base(const EstimateArgs& a, int b, int e, Vec4d* Y) { estimate_body(a, b, e, Y); }
+MD_TARGET_AVX2 void estimate_avx2(const EstimateArgs& a, int b, int e, Vec4d* Y) {
+  estimate_body(a, b, e, Y);
 }
-void gather_base(const GatherArgs& a, int b, int e) { gather_body(a, b, e); }
-MD_TARGET_AVX2 void gather_avx2(const GatherArgs& a, int b, int e) { gather_body(a, b, e); }
 
 }  // namespace
 
@@ -227,15 +218,16 @@ struct EdgeDeformer::Impl {
   std::vector<int> slot_vertex;   // slot -> vertex
   std::vector<EdgeGroup> groups;  // edges touching a free vertex, ordered by slot, 4 per group
   int num_terms = 0;
-  std::vector<int> g_ptr, g_target;
-  std::vector<double> g_coef;
   // Free x fixed coupling (CSR by solver row; column = fixed slot - nf).
   std::vector<int> c_ptr, c_col;
   std::vector<double> c_val;
   std::unique_ptr<SparseCholesky> chol;
 
-  // 4 doubles per row (x, y, z, pad), viewed as Vec4d by the kernels.
-  std::vector<double> P0, P1, T, b0;
+  // 4 doubles per row (x, y, z, pad), viewed as Vec4d by the kernels: two position buffers by
+  // slot (current and next iterate), the constant right-hand side, and one right-hand-side
+  // accumulator per parallel part of the estimation step (the first is solved in place).
+  std::vector<double> P0, P1, b0;
+  std::vector<std::vector<double>> acc;
 };
 
 EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
@@ -578,42 +570,9 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
     for (int c = 0; c < 3; ++c) g.r0[c][k] = all_dir[3 * static_cast<size_t>(keep[q]) + c];
   }
 
-  // Gather lists: per solver row, (target index, coefficient) of every stencil entry of its
-  // vertex; target 2q is term q's stretch target, 2q + 1 its bend target.
-  const int nt = d.num_terms;
-  d.g_ptr.assign(nf + 1, 0);
-  auto for_entries = [&](auto&& fn) {
-    for (int q = 0; q < nt; ++q) {
-      const EdgeTerm& t = terms[q];
-      if (t.c_rho > 0.0) {
-        fn(t.i, 2 * q, 1.0);
-        fn(t.j, 2 * q, -1.0);
-      }
-      if (t.l >= 0) {
-        fn(t.i, 2 * q + 1, t.alpha);
-        fn(t.j, 2 * q + 1, 1.0 - t.alpha);
-        fn(t.l, 2 * q + 1, -t.beta);
-        fn(t.m, 2 * q + 1, t.beta - 1.0);
-      }
-    }
-  };
-  for_entries([&](int s, int, double) {
-    if (s < nf) ++d.g_ptr[s + 1];
-  });
-  for (int r = 0; r < nf; ++r) d.g_ptr[r + 1] += d.g_ptr[r];
-  d.g_target.resize(d.g_ptr[nf]);
-  d.g_coef.resize(d.g_ptr[nf]);
-  std::vector<int> cursor(d.g_ptr.begin(), d.g_ptr.end() - 1);
-  for_entries([&](int s, int target, double c) {
-    if (s >= nf) return;
-    d.g_target[cursor[s]] = target;
-    d.g_coef[cursor[s]++] = c;
-  });
-
   const size_t rows = static_cast<size_t>(nf) + d.nfix;
   d.P0.assign(4 * rows, 0.0);
   d.P1.assign(4 * rows, 0.0);
-  d.T.assign(32 * d.groups.size(), 0.0);
   d.b0.assign(4 * static_cast<size_t>(nf), 0.0);
 }
 
@@ -655,7 +614,6 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   const Vertices& X0 = initial ? *initial : d.rest;
   Vec4d* cur = reinterpret_cast<Vec4d*>(d.P0.data());
   Vec4d* next = reinterpret_cast<Vec4d*>(d.P1.data());
-  Vec4d* T = reinterpret_cast<Vec4d*>(d.T.data());
   Vec4d* b0 = reinterpret_cast<Vec4d*>(d.b0.data());
   for (int v = 0; v < d.n; ++v) {
     cur[d.slot[v]] = Vec4d{X0(v, 0), X0(v, 1), X0(v, 2), 0.0};
@@ -682,21 +640,44 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
 
   const bool avx2 = cpu_has_avx2_fma();
   const int ng = static_cast<int>(d.groups.size());
+  // Parallel parts of the estimation step, each scattering into its own accumulator. Below
+  // ~8k edges per part the split costs more than it saves.
+  constexpr int kMinGroups = 2048, kMaxParts = 8;
+  const int parts = std::max(1, std::min({num_threads(), ng / kMinGroups, kMaxParts}));
+  const size_t rows = static_cast<size_t>(nf) + d.nfix;
+  if (static_cast<int>(d.acc.size()) < parts) d.acc.resize(parts);
+  for (int p = 0; p < parts; ++p) d.acc[p].resize(4 * rows);
+  Vec4d* Y = reinterpret_cast<Vec4d*>(d.acc[0].data());
   const double stop = options.tol * diag_;
   int it = 0;
   double move = 0.0;
   while (it < options.iterations) {
-    const EstimateArgs ea{d.groups.data(), cur, T, options.p_stretch, options.p_bend};
-    parallel_ranges(ng, 2048, 8,
-                    [&](int b, int e) { (avx2 ? estimate_avx2 : estimate_base)(ea, b, e); });
-    const GatherArgs ga{d.g_ptr.data(), d.g_target.data(), d.g_coef.data(), T, b0, next};
-    parallel_ranges(nf, 4096, 8,
-                    [&](int b, int e) { (avx2 ? gather_avx2 : gather_base)(ga, b, e); });
-    d.chol->solve_permuted4(reinterpret_cast<double*>(next));
+    const EstimateArgs ea{d.groups.data(), cur, options.p_stretch, options.p_bend};
+    run_tasks(parts, [&](int p) {
+      Vec4d* acc = reinterpret_cast<Vec4d*>(d.acc[p].data());
+      if (p == 0) {
+        std::copy(d.b0.begin(), d.b0.end(), d.acc[0].begin());
+      } else {
+        std::fill(d.acc[p].begin(), d.acc[p].begin() + 4 * static_cast<size_t>(nf), 0.0);
+      }
+      const int b = static_cast<int>(static_cast<int64_t>(ng) * p / parts);
+      const int e = static_cast<int>(static_cast<int64_t>(ng) * (p + 1) / parts);
+      (avx2 ? estimate_avx2 : estimate_base)(ea, b, e, acc);
+    });
+    if (parts > 1) {
+      parallel_ranges(nf, 4096, 8, [&](int b, int e) {
+        for (int p = 1; p < parts; ++p) {
+          const Vec4d* acc = reinterpret_cast<const Vec4d*>(d.acc[p].data());
+          for (int r = b; r < e; ++r) Y[r] += acc[r];
+        }
+      });
+    }
+    d.chol->solve_permuted4(reinterpret_cast<double*>(Y));
     double m2 = it == 0 ? move0 : 0.0;
     for (int r = 0; r < nf; ++r) {
-      const Vec4d dv = next[r] - cur[r];
+      const Vec4d dv = Y[r] - cur[r];
       m2 = std::max(m2, dot3(dv, dv));
+      next[r] = Y[r];
     }
     move = std::sqrt(m2);
     if (it == 0) {
