@@ -24,19 +24,20 @@ void bind_edge_deformer(py::module_& m) {
           "solve",
           [](EdgeDeformer& self, const Vertices& constrained_positions, int iterations, double tol,
              double p_stretch, double p_bend, const Eigen::Vector3d& gravity,
-             std::optional<Vertices> initial) {
+             std::optional<Vertices> initial, double relaxation) {
             EdgeSolveOptions o;
             o.iterations = iterations;
             o.tol = tol;
             o.p_stretch = p_stretch;
             o.p_bend = p_bend;
             o.gravity = gravity;
+            o.relaxation = relaxation;
             py::gil_scoped_release release;
             return self.solve(constrained_positions, o, initial ? &*initial : nullptr);
           },
           py::arg("constrained_positions"), py::arg("iterations"), py::arg("tol"),
           py::arg("p_stretch"), py::arg("p_bend"), py::arg("gravity"),
-          py::arg("initial") = py::none())
+          py::arg("initial") = py::none(), py::arg("relaxation") = 1.0)
       .def_property_readonly("last_iterations", &EdgeDeformer::last_iterations)
       .def_property_readonly("last_move", &EdgeDeformer::last_move)
       .def_property_readonly("factorizations", &EdgeDeformer::factorizations)

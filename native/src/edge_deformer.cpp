@@ -606,6 +606,9 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   if (!(options.p_bend >= 0.0 && options.p_bend <= 1.0)) {
     throw std::invalid_argument("p_bend: expected a value in [0, 1]");
   }
+  if (!(options.relaxation > 0.0 && options.relaxation <= 1.0)) {
+    throw std::invalid_argument("relaxation: expected a value in (0, 1]");
+  }
   if (!options.gravity.allFinite())
     throw std::invalid_argument("gravity: contains NaN or infinity");
 
@@ -673,13 +676,14 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
       });
     }
     d.chol->solve_permuted4(reinterpret_cast<double*>(Y));
-    double m2 = it == 0 ? move0 : 0.0;
+    double m2 = 0.0;
+    const double w = options.relaxation;
     for (int r = 0; r < nf; ++r) {
       const Vec4d dv = Y[r] - cur[r];
       m2 = std::max(m2, dot3(dv, dv));
-      next[r] = Y[r];
+      next[r] = w == 1.0 ? Y[r] : cur[r] + w * dv;
     }
-    move = std::sqrt(m2);
+    move = std::sqrt(std::max(w * w * m2, it == 0 ? move0 : 0.0));
     if (it == 0) {
       // From now on both buffers hold the constrained positions.
       for (int c = 0; c < d.nc; ++c) cur[nf + c] = next[nf + c];

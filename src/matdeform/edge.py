@@ -94,6 +94,7 @@ class EdgeDeformer:
         p_bend: float = 1.0,
         gravity=(0.0, 0.0, 0.0),
         initial=None,
+        relaxation: float = 1.0,
     ) -> np.ndarray:
         """Run up to ``iterations`` E-M iterations; returns the last iterate (n,3) float64.
 
@@ -110,6 +111,10 @@ class EdgeDeformer:
         initial : (n,3) float warm start (e.g. the previous result), or None for the rest mesh.
             Iterations compose: solve(x, iterations=a+b) equals solving ``b`` iterations from the
             result of ``a``.
+        relaxation : float in (0,1], omega: each iteration moves the free vertices by omega
+            times the E-M step (1 is the paper's iteration). The fixed points are the same; a
+            value below 1 (e.g. 0.8) damps the two-cycles the plain iteration can fall into
+            when constraints are far from rest (docs/edge.md).
 
         ``last_iterations`` and ``last_move`` report the iterations run and the last move.
         """
@@ -130,7 +135,8 @@ class EdgeDeformer:
         if not np.isfinite(g).all():
             raise ValueError("gravity: contains NaN or infinity")
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
-        return self._core.solve(x, int(iterations), t, ps, pb, g, x0)
+        w = _scalar(relaxation, "relaxation", 0.0, 1.0, lo_open=True)
+        return self._core.solve(x, int(iterations), t, ps, pb, g, x0, w)
 
     @property
     def last_iterations(self) -> int:

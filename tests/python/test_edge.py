@@ -294,6 +294,29 @@ def test_warm_starts_compose_and_tolerance_stops():
     assert warm < d.last_iterations
 
 
+def test_relaxation_scales_the_step_and_keeps_the_fixed_points():
+    v, f, c, pos = fig2a(12)
+    d = md.EdgeDeformer(v, f, c, stretch=0.05)
+    x = d.solve(pos, iterations=3, tol=0)  # constraints already at their targets
+    step = d.solve(pos, iterations=1, tol=0, initial=x)
+    damped = d.solve(pos, iterations=1, tol=0, initial=x, relaxation=0.6)
+    np.testing.assert_allclose(damped, 0.4 * x + 0.6 * step, atol=1e-14, rtol=0)
+    expected = 0.6 * np.linalg.norm(step - x, axis=1).max() / d.diagonal
+    assert d.last_move == pytest.approx(expected, rel=1e-9)
+    # same fixed point, reached by both
+    a = d.solve(pos, iterations=5000, tol=1e-12)
+    b = d.solve(pos, iterations=5000, tol=1e-12, relaxation=0.7)
+    np.testing.assert_allclose(a, b, atol=1e-8 * d.diagonal, rtol=0)
+    v2, f2 = shapes.tube(length=4.0, radius=0.6, n_around=10, n_along=16)
+    lo, hi = shapes.end_faces(v2, f2, 0.01)
+    c2 = np.unique(f2[np.concatenate([lo, hi])])
+    R = rotation([0, 1, 1], 1.5)
+    y = md.EdgeDeformer(v2, f2, c2, stretch=0.1).solve(
+        v2[c2] @ R.T, iterations=5000, tol=1e-13, relaxation=0.6
+    )
+    np.testing.assert_allclose(y, v2 @ R.T, atol=1e-9 * np.linalg.norm(np.ptp(v2, 0)), rtol=0)
+
+
 def test_passive_parts_keep_their_positions():
     a_v, a_f = grid(5, 5)
     b_v, b_f = grid(3, 3)

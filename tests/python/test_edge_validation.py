@@ -94,6 +94,8 @@ def test_solve_arguments_and_failed_calls_change_nothing(sheet):
         (dict(gravity="down"), r"gravity: expected a float array of shape \(3,\)"),
         (dict(initial=np.zeros((35, 3))), r"initial: expected shape \(36,3\)"),
         (dict(initial=np.full((36, 3), np.inf)), "initial: contains NaN"),
+        (dict(relaxation=0.0), r"relaxation: expected a finite value in \(0, 1\]"),
+        (dict(relaxation=1.5), r"relaxation: expected a finite value in \(0, 1\]"),
     ]
     for kw, msg in bad_calls:
         args = dict(constrained_positions=pos, iterations=5, tol=0)
@@ -126,6 +128,8 @@ def test_core_rechecks_indices_without_crashing(sheet):
         d.solve(v[c], 3, 0.0, 2.0, 1.0, np.zeros(3), None)
     with pytest.raises(ValueError):
         d.solve(v[c], 3, 0.0, 1.0, 1.0, np.zeros(3), np.zeros((4, 3)))
+    with pytest.raises(ValueError):
+        d.solve(v[c], 3, 0.0, 1.0, 1.0, np.zeros(3), None, 0.0)
 
 
 def test_mesh_edges_validation():

@@ -25,6 +25,9 @@ struct EdgeSolveOptions {
   double p_stretch = 1.0;  // p_rho in [0,1] (Eq. 15)
   double p_bend = 1.0;     // p_sigma in [0,1] (Eq. 15)
   Eigen::Vector3d gravity = Eigen::Vector3d::Zero();  // g, pointing the way things fall (Eq. 8)
+  // omega in (0,1]: each iteration moves the free vertices by omega times the E-M step (1: the
+  // paper). Same fixed points; below 1 it damps the two-cycles the plain iteration can fall into.
+  double relaxation = 1.0;
 };
 
 // min over V: lambda sum_e w_e k_e |rho*_e - (v_i - v_j)|^2
