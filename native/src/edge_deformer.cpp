@@ -368,8 +368,8 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
                  xm = vertices.row(m);
         const V3 c = edge_normal2(xi, xj, xl, xm);
         const double len2 = (xi - xj).squaredNorm();
-        if (len2 > 0.0 &&
-            c.squaredNorm() > 1e-24 * len2 * ((xl - xi).squaredNorm() + (xm - xj).squaredNorm())) {
+        // the same test as the iteration's (estimate_body): |c| above 1e-12 |x_ij| |x_lm|
+        if (len2 > 0.0 && c.squaredNorm() > 1e-24 * len2 * (xl - xm).squaredNorm()) {
           const V3 nrm = c.normalized();
           const V3 ldir = (xi - xj) / std::sqrt(len2);
           const V3 bdir = ldir.cross(nrm);
