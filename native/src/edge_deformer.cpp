@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdint>
 #include <limits>
+#include <mutex>
 #include <numeric>
 #include <stdexcept>
 #include <string>
@@ -228,6 +229,7 @@ struct EdgeDeformer::Impl {
   // accumulator per parallel part of the estimation step (the first is solved in place).
   std::vector<double> P0, P1, b0;
   std::vector<std::vector<double>> acc;
+  std::mutex busy;  // solve() calls from several threads (the GIL is released) take turns
 };
 
 EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
@@ -612,6 +614,7 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   if (!options.gravity.allFinite())
     throw std::invalid_argument("gravity: contains NaN or infinity");
 
+  const std::lock_guard<std::mutex> lock(d.busy);
   const ParkWorkersOnExit park;
   const int nf = d.nf;
   const Vertices& X0 = initial ? *initial : d.rest;

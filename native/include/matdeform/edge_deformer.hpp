@@ -54,7 +54,7 @@ class EdgeDeformer {
   EdgeDeformer& operator=(const EdgeDeformer&) = delete;
 
   // constrained_positions (|constrained|,3) in the constructor's order; initial: (n,3) warm
-  // start or nullptr (rest). Returns the last iterate (n,3). Not thread-safe (shared buffers).
+  // start or nullptr (rest). Returns the last iterate (n,3). Concurrent calls take turns.
   Vertices solve(const Vertices& constrained_positions, const EdgeSolveOptions& options,
                  const Vertices* initial = nullptr);
 
