@@ -6,6 +6,7 @@ float32 4x4 matrices (random rotations up to 1 rad, moves, sometimes a scale), a
 will pass them. Per mesh:
 
   factor      EdgeDeformer constructor (edges, alpha/beta, one CHOLMOD factorisation), median
+              of --factor-repeats
   iteration   solve(iterations=10, tol=0) / 10, warm-started, median (and best) of --repeats
   converge    from rest to tol=1e-5 (largest move < 1e-5 x diagonal): iterations and time,
               median over --poses poses
@@ -96,8 +97,8 @@ def anchor_positions(v, groups, T):
 
 
 def moving_groups(name, k):
-    # tubes: the base stays, the tip moves; plane: the centre handle moves
-    return [k - 1]
+    # tubes: both end Empties move; plane (Fig. 2a): the corners stay, the centre handle moves
+    return [k - 1] if name.startswith("plane") else list(range(k))
 
 
 def measure(name, v, f, groups, args, rng):
