@@ -1,10 +1,14 @@
-"""Core demo: deform procedural meshes with a few anchors, uniform vs material-aware.
+"""Core demo: deform procedural meshes with a few anchors, uniform vs material-aware, and the
+edge-based method's materials (membrane to cloth).
 
 Writes OBJ files (rest, uniform, material-aware) and a PNG picture into out/ (or --out).
 Paper Fig. 1/10: a tentacle whose stiffness grows with its girth curls into a spiral when its
 tip is rotated, while uniform material gives a plain arc. Fig. 4: a bar with a stiff middle.
 Also poses meshes with a few control vertices by pyramid coordinates (demo_pyramid.png): a bar,
 and the cat from shared/data/cat-poses when it is there.
+Edge-based (docs/edge.md): a sheet pinned at two corners hanging under gravity, stretch weight
+lambda from membrane to cloth (demo_edge_sheet.png), and the paper's Fig. 2a/2c plane
+(demo_edge_plane.png).
 """
 
 from __future__ import annotations
@@ -130,6 +134,104 @@ def pyramid_figure(out: Path) -> None:
     print(f"wrote {out}/demo_pyramid.png")
 
 
+def plane(n, size=1.0):
+    """(n x n)-square plane in z = 0: (n+1)^2 vertices, 2 n^2 triangles."""
+    xs, ys = np.meshgrid(np.linspace(0, size, n + 1), np.linspace(0, size, n + 1))
+    v = np.stack([xs.ravel(), ys.ravel(), np.zeros(xs.size)], 1)
+    a = (np.arange(n)[:, None] * (n + 1) + np.arange(n)[None, :]).ravel()
+    f = np.concatenate([np.stack([a, a + 1, a + n + 2], 1), np.stack([a, a + n + 2, a + n + 1], 1)])
+    return v, f
+
+
+def face_strain(rest, x, f):
+    """Mean relative length change of each face's three edges."""
+    e = [(0, 1), (1, 2), (2, 0)]
+    r = [np.linalg.norm(rest[f[:, a]] - rest[f[:, b]], axis=1) for a, b in e]
+    d = [np.linalg.norm(x[f[:, a]] - x[f[:, b]], axis=1) for a, b in e]
+    return np.mean([dd / rr - 1.0 for dd, rr in zip(d, r, strict=True)], axis=0)
+
+
+def draw_strain(ax, x, f, strain, title, lim, view=(12, -62), red=0.5):
+    """Faces coloured by edge strain (blue: kept length or shorter, red: `red` or more), lit."""
+    c = plt.cm.coolwarm(np.clip(strain / red, 0.0, 1.0))
+    n = np.cross(x[f[:, 1]] - x[f[:, 0]], x[f[:, 2]] - x[f[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True) + 1e-12
+    light = np.array([0.4, -0.6, 0.7]) / np.linalg.norm([0.4, -0.6, 0.7])
+    c[:, :3] *= (0.45 + 0.55 * np.abs(n @ light))[:, None]
+    ax.add_collection3d(Poly3DCollection(x[f], facecolors=c, edgecolors="none"))
+    (x0, x1), (y0, y1), (z0, z1) = lim
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
+    ax.set_zlim(z0, z1)
+    ax.set_box_aspect((x1 - x0, y1 - y0, z1 - z0))
+    ax.view_init(*view)
+    ax.set_axis_off()
+    ax.set_title(title, fontsize=9)
+
+
+def hanging_sheet():
+    """A 40 x 40 sheet pinned at two corners of one side, the pins moved 30 % closer together,
+    hanging under the same gravity for lambda from membrane to cloth (bend 1)."""
+    v, f = plane(40)
+    pins = np.array([0, 40])
+    pos = v[pins] + [[0.15, 0.0, 0.0], [-0.15, 0.0, 0.0]]
+    results = []
+    for lam, name in ((2e-4, "membrane"), (1e-3, ""), (1e-2, ""), (1e-1, "cloth")):
+        d = md.EdgeDeformer(v, f, pins, stretch=lam, bend=1.0)
+        x = d.solve(pos, iterations=20000, tol=1e-6, gravity=(0.0, 0.0, -1e-6))
+        results.append((lam, name, x, d.last_iterations))
+    return v, f, results
+
+
+def edge_demo(out: Path):
+    v, f, results = hanging_sheet()
+    lim = ((-0.1, 1.1), (-0.1, 1.1), (-2.0, 0.1))
+    fig = plt.figure(figsize=(16, 6.5))
+    for k, (lam, name, x, its) in enumerate(results):
+        md.write_obj(out / f"sheet_lambda_{lam:g}.obj", x, f)
+        s = face_strain(v, x, f)
+        title = f"lambda = {lam:g} {('(' + name + ')') if name else ''}\n"
+        title += f"mean strain {100 * s.mean():+.1f} %, {its} iterations"
+        draw_strain(fig.add_subplot(1, 4, k + 1, projection="3d"), x, f, s, title, lim)
+    fig.suptitle(
+        "Edge-based: sheet pinned at two corners under gravity g = (0, 0, -1e-6), bend 1 "
+        "(colour: edge strain, blue <= 0 %, red >= +50 %)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(out / "demo_edge_sheet.png", dpi=90)
+
+    # Paper Fig. 2a/2c: 101 x 101 plane, corners fixed, centre dragged up by 0.3.
+    v, f = plane(100)
+    c = np.array([0, 100, 100 * 101, 101 * 101 - 1, 101 * 101 // 2])
+    pos = v[c].copy()
+    pos[-1, 2] += 0.3
+    along_x = np.tile([1.0, 0.0, 0.0], (len(v), 1))
+    cases = [
+        ("lambda = 0", dict(stretch=0.0)),
+        ("lambda = 1e-3", dict(stretch=1e-3)),
+        ("lambda = 1e-2", dict(stretch=1e-2)),
+        ("lambda = 1", dict(stretch=1.0)),
+        ("lambda = 1e-2, field along x", dict(stretch=1e-2, direction=along_x)),
+    ]
+    fig = plt.figure(figsize=(20, 4.8))
+    lim = ((0.0, 1.0), (0.0, 1.0), (-0.05, 0.35))
+    for k, (title, kw) in enumerate(cases):
+        d = md.EdgeDeformer(v, f, c, bend=1.0, **kw)
+        x = d.solve(pos, iterations=3000, tol=1e-6)
+        s = face_strain(v, x, f)
+        title += f"\nmean strain {100 * s.mean():+.1f} %, {d.last_iterations} iterations"
+        ax = fig.add_subplot(1, len(cases), k + 1, projection="3d")
+        draw_strain(ax, x, f, s, title, lim, (25, -60), red=0.1)
+    fig.suptitle(
+        "Edge-based: paper Fig. 2a/2c, 101 x 101 plane with fixed corners, centre dragged up by "
+        "0.3 x side, bend 1 (colour: edge strain, blue <= 0 %, red >= +10 %)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    fig.savefig(out / "demo_edge_plane.png", dpi=90)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--out", default="out")
@@ -153,8 +255,9 @@ def main():
             )
     fig.tight_layout()
     fig.savefig(out / "demo_core.png", dpi=110)
-    print(f"wrote {out}/demo_core.png and OBJ files")
+    edge_demo(out)
     pyramid_figure(out)
+    print(f"wrote {out}/demo_core.png, demo_edge_*.png, demo_pyramid.png and OBJ files")
 
 
 if __name__ == "__main__":

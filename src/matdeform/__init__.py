@@ -1,9 +1,12 @@
-"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006) and more solvers.
+"""matdeform: mesh deformation solvers with a numpy API: material-aware deformation (Popa,
+Julius, Sheffer 2006), edge-based iterative material deformation (cloth, membranes, shells) and
+shape-preserving pyramid coordinates.
 
-numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
+numpy in, numpy out; the solvers are a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
 
 from .deformer import MaterialDeformer
+from .edge import EdgeDeformer
 from .frames import deformation_gradients
 from .learn import (
     learn_distortions,
@@ -12,7 +15,13 @@ from .learn import (
     smooth_distortions,
     stiffness_from_distortion,
 )
-from .mesh import boundary_and_nonmanifold_edges, dual_edges, face_components, faces_inside
+from .mesh import (
+    boundary_and_nonmanifold_edges,
+    dual_edges,
+    face_components,
+    faces_inside,
+    mesh_edges,
+)
 from .obj import read_obj, write_obj
 from .pyramid import PyramidDeformer, pyramid_coordinates
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
@@ -23,6 +32,7 @@ from .weights import harmonic_weights
 __version__ = "0.1.0"
 
 __all__ = [
+    "EdgeDeformer",
     "MaterialDeformer",
     "PyramidDeformer",
     "bend_from_shear",
@@ -37,6 +47,7 @@ __all__ = [
     "num_threads",
     "learn_distortions",
     "learn_stiffness",
+    "mesh_edges",
     "polar_decompose",
     "pyramid_coordinates",
     "read_obj",
