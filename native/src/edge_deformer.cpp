@@ -472,7 +472,10 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
       "flat part needs three constrained vertices that are not in a line";
   try {
     d.chol = std::make_unique<SparseCholesky>(Aff, SparseCholesky::Reuse::PerPose);
-  } catch (const std::runtime_error&) {
+  } catch (const std::exception&) {
+    // Aff is finite (checked above), so a failed factorisation means it is not positive
+    // definite: some vertex is not determined (invalid_argument), or CHOLMOD gave up
+    // (runtime_error).
     throw std::invalid_argument(singular);
   }
   if (nf > 0) ++factorizations_;
