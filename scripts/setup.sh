@@ -7,7 +7,7 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 
 # OpenBLAS (serial: no thread pool fighting the host's) speeds up the supernodal factorisations.
-APT_PACKAGES=(build-essential libeigen3-dev libsuitesparse-dev libopenblas0-serial libgtest-dev clang-format)
+APT_PACKAGES=(build-essential libeigen3-dev libsuitesparse-dev libopenblas0-serial libgtest-dev clang-format libmeshoptimizer-dev)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
