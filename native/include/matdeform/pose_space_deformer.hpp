@@ -1,0 +1,108 @@
+// Pose-space surface manipulation: example shapes + translational and rotational handles.
+//
+// The MeshIK family (Sumner et al. 2005) with a rotation-invariant encoding (Lipman et al. 2005)
+// and pose-space interpolation. Per example k and face i: the deformation gradient
+// T_ik = R_ik S_ik (rest -> example, fourth-vertex frames), S_ik symmetric (rest frame); per dual
+// edge (i, j) the relative rotation log w_ijk = log(R_ik^T R_jk). deform():
+//  1. pose: handle centroids in a frame (the frame face, or a best fit of all handle vertices)
+//     plus the logs of the prescribed joint rotations -> example weights by cardinal radial basis
+//     interpolation (phi(r) = r with a constant term): 1 at its own example, 0 at the others,
+//     summing to 1, continuous and bounded;
+//  2. blend: Q_ij = exp(sum_k w_k w_ijk), S_i = sum_k w_k S_ik;
+//  3. step 1: rotations R_i minimising sum |R_j - R_i Q_ij|^2 + joint and handle penalties, each
+//     projected to the nearest rotation; step 2: positions minimising sum |grad_i x - R_i S_i|^2
+//     + handle penalties.
+// Step 1's matrix depends on Q (the paper refactors it per edit). Here it is solved in a gauge
+// where it is nearly constant: the rotations integrated along a spanning tree of the face graph
+// turn every tree edge's Q into the identity, so the scalar face-graph Laplacian, factored once,
+// is an almost exact preconditioner for conjugate gradients (one iteration when the blended
+// rotations are consistent, e.g. at an example). Step 2's matrix is constant and factored once.
+// With a coarse face count the solve runs on a quadric-simplified mesh and dense vertices follow
+// it through harmonic weights and per-example detail vectors. See docs/pose_space.md.
+#pragma once
+
+#include <array>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "matdeform/types.hpp"
+
+namespace matdeform {
+
+struct PoseSpaceOptions {
+  // Face whose frame (rotation and centroid) the handle positions are measured in. Without it a
+  // best-fit rigid frame of all handle vertices is used.
+  std::optional<int> frame;
+  // Rotational handles: (face_a, face_b) pairs; deform() prescribes R_a^T R_b for each.
+  std::vector<std::array<int, 2>> rotational;
+  // Faces that keep their rest shape and place.
+  std::vector<int> frozen;
+  // Target face count of the coarse mesh; nullopt solves on the full mesh.
+  std::optional<int> coarse_faces;
+  // Penalty weights, relative: positions against the mean diagonal of the step-2 matrix,
+  // rotations against unit dual-edge weights in step 1. All > 0.
+  double position_weight = 100.0;
+  double rotation_weight = 1.0;  // faces inside a handle follow its best-fit rotation
+  double joint_weight = 100.0;   // rotational pairs
+  bool handle_rotations = true;  // false: translational handles do not constrain step 1
+  // Example weights: ridge added to the kernel matrix, relative to its largest entry (>= 0; 0
+  // interpolates exactly), and whether negative weights are clipped and the rest renormalised.
+  double weight_regularization = 0.0;
+  bool convex_weights = false;
+  // Multiresolution: coarse vertices each dense vertex follows (harmonic weights, largest kept).
+  int transfer_neighbors = 8;
+};
+
+// What the last deform() did (for benchmarks and tests). Times in milliseconds.
+struct PoseSpaceStats {
+  int iterations_first = 0;   // conjugate-gradient iterations of step 1 (natural shape)
+  int iterations_second = 0;  // ... of step 1 with the handle rotations (0 when skipped)
+  double ms_weights = 0, ms_blend = 0, ms_rotations = 0, ms_positions = 0, ms_fit = 0,
+         ms_transfer = 0;
+};
+
+class PoseSpaceDeformer {
+ public:
+  // rest (n,3); faces (m,3), connected, every vertex used, no degenerate face; examples: p >= 0
+  // arrays (n,3) with the connectivity of rest; handles: h >= 0 disjoint non-empty vertex lists.
+  // Throws std::invalid_argument on bad input.
+  PoseSpaceDeformer(const Vertices& rest, const Faces& faces, const std::vector<Vertices>& examples,
+                    const std::vector<std::vector<int>>& handles,
+                    const PoseSpaceOptions& options = {});
+  ~PoseSpaceDeformer();
+  PoseSpaceDeformer(const PoseSpaceDeformer&) = delete;
+  PoseSpaceDeformer& operator=(const PoseSpaceDeformer&) = delete;
+
+  // handle_positions: h arrays (|handles[j]|,3), world positions. rotations: r rotations
+  // R_a^T R_b of the rotational pairs, or nullptr (joints free, pose from positions only).
+  // frame_transform: rigid 4x4 moving the rest frame face to its place, or nullptr (then the
+  // frame is measured from the handle positions, which must cover the frame face's vertices).
+  // Returns (n,3).
+  Vertices deform(const std::vector<Vertices>& handle_positions, const Matrix3Array* rotations,
+                  const Eigen::Matrix4d* frame_transform = nullptr) const;
+
+  // The example weights (p,) deform() would use for these inputs.
+  Eigen::VectorXd pose_weights(const std::vector<Vertices>& handle_positions,
+                               const Matrix3Array* rotations,
+                               const Eigen::Matrix4d* frame_transform = nullptr) const;
+
+  // (p,) weights of the last deform() (empty before the first call or with p = 0).
+  const Eigen::VectorXd& example_weights() const;
+  const PoseSpaceStats& last_stats() const;
+
+  int num_examples() const;
+  int num_handles() const;
+  int num_rotational() const;
+  bool multiresolution() const;
+  // The mesh step 1 and 2 run on: the coarse faces (in coarse vertex indices) and the dense
+  // index of each coarse vertex; the full mesh without multiresolution.
+  const Faces& solve_faces() const;
+  const std::vector<int>& solve_vertices() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace matdeform
