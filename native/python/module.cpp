@@ -12,6 +12,7 @@ void bind_stiffness(py::module_& m);
 void bind_deformer(py::module_& m);
 void bind_threads(py::module_& m);
 void bind_learn(py::module_& m);
+void bind_pose_space_deformer(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "Material-aware mesh deformation core (C++)";
@@ -23,4 +24,5 @@ PYBIND11_MODULE(_core, m) {
   bind_deformer(m);
   bind_threads(m);
   bind_learn(m);
+  bind_pose_space_deformer(m);
 }

@@ -1,4 +1,5 @@
-"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006).
+"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006) and pose-space
+surface manipulation from example shapes.
 
 numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
@@ -14,6 +15,7 @@ from .learn import (
 )
 from .mesh import boundary_and_nonmanifold_edges, dual_edges, face_components, faces_inside
 from .obj import read_obj, write_obj
+from .pose_space import PoseSpaceDeformer
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
 from .transforms import blend_transforms, polar_decompose, transform_exp, transform_log
@@ -23,6 +25,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "MaterialDeformer",
+    "PoseSpaceDeformer",
     "bend_from_shear",
     "bend_from_vertex",
     "blend_transforms",
