@@ -1,4 +1,6 @@
 // Thin bindings for pose_space_deformer.hpp; matdeform/pose_space.py validates and documents.
+#include <string>
+
 #include "convert.hpp"
 #include "matdeform/pose_space_deformer.hpp"
 
@@ -25,7 +27,9 @@ void bind_pose_space_deformer(py::module_& m) {
                        const Pairs& rotational, std::optional<int> coarse,
                        const std::vector<int>& frozen, double position_weight,
                        double rotation_weight, double joint_weight, bool handle_rotations,
-                       double weight_regularization, bool convex_weights, int transfer_neighbors) {
+                       double weight_regularization, bool convex_weights, int transfer_neighbors,
+                       const std::string& rotation_energy, int rotation_iterations,
+                       double reliability_angle, double orientation_weight, int gauge_steps) {
              PoseSpaceOptions o;
              o.frame = frame;
              o.rotational = rotational;
@@ -38,6 +42,15 @@ void bind_pose_space_deformer(py::module_& m) {
              o.weight_regularization = weight_regularization;
              o.convex_weights = convex_weights;
              o.transfer_neighbors = transfer_neighbors;
+             if (rotation_energy == "geodesic") {
+               o.rotation_energy = PoseSpaceOptions::RotationEnergy::kGeodesic;
+             } else if (rotation_energy != "chordal") {
+               throw std::invalid_argument("rotation_energy: expected 'chordal' or 'geodesic'");
+             }
+             o.rotation_iterations = rotation_iterations;
+             o.reliability_angle = reliability_angle;
+             o.orientation_weight = orientation_weight;
+             o.gauge_steps = gauge_steps;
              py::gil_scoped_release release;
              return std::make_unique<PoseSpaceDeformer>(vertices, faces, examples, handles, o);
            }),
@@ -45,7 +58,9 @@ void bind_pose_space_deformer(py::module_& m) {
            py::arg("frame"), py::arg("rotational"), py::arg("coarse"), py::arg("frozen"),
            py::arg("position_weight"), py::arg("rotation_weight"), py::arg("joint_weight"),
            py::arg("handle_rotations"), py::arg("weight_regularization"), py::arg("convex_weights"),
-           py::arg("transfer_neighbors"))
+           py::arg("transfer_neighbors"), py::arg("rotation_energy") = "chordal",
+           py::arg("rotation_iterations") = 10, py::arg("reliability_angle") = 0.5,
+           py::arg("orientation_weight") = 1.0, py::arg("gauge_steps") = 2)
       .def(
           "deform",
           [](const PoseSpaceDeformer& self, const std::vector<Vertices>& handle_positions,

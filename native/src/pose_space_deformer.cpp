@@ -13,6 +13,7 @@
 #include <queue>
 #include <stdexcept>
 #include <string>
+#include <tuple>
 #include <utility>
 
 #include "matdeform/frames.hpp"
@@ -32,9 +33,8 @@ using Mat3 = Eigen::Matrix3d;
 
 constexpr double kPi = 3.14159265358979323846;
 // Conjugate gradients stop when the energy-norm error estimate is below this fraction of the
-// solution's energy norm; the cap is never reached in practice (see docs/pose_space.md).
+// solution's energy norm, or at PoseSpaceOptions::rotation_iterations.
 constexpr double kCgTolerance = 1e-11;
-constexpr int kCgMaxIterations = 200;
 // Per-edit loops over faces or vertices: below this size they run serially.
 constexpr int kParallelMin = 4096;
 constexpr int kTasks = 8;
@@ -50,22 +50,19 @@ std::string item(const char* name, size_t i) {
 }
 
 // Nearest proper rotation in the Frobenius norm (the rotation factor of the polar
-// decomposition). Scaled Newton iteration X <- (g X + X^-T / g) / 2, g = det(X)^(-1/3), which
-// converges quadratically and needs no SVD for the near-rotations step 1 produces; an SVD
-// handles det <= 0 and ill-conditioned input.
+// decomposition). Step 1 produces near-rotations: for those the Newton-Schulz iteration
+// X <- X (3 I - X^T X) / 2 converges quadratically with two matrix products per step and no
+// division; anything farther from orthogonal (or with det <= 0) goes through an SVD.
 Mat3 nearest_rotation(const Mat3& M) {
   if (!M.allFinite()) return Mat3::Identity();
-  const double s = M.norm();
-  if (M.determinant() > 1e-6 * s * s * s) {
+  if (M.determinant() > 0.0) {
     Mat3 X = M;
-    for (int it = 0; it < 30; ++it) {
-      const double d = X.determinant();
-      if (!(d > 0.0)) break;
-      const double g = 1.0 / std::cbrt(d);
-      const Mat3 N = 0.5 * (g * X + X.inverse().transpose() / g);
-      const double change = (N - X).squaredNorm();
-      X = N;
-      if (change < 1e-28) return X;
+    for (int it = 0; it < 12; ++it) {
+      const Mat3 E = X.transpose() * X - Mat3::Identity();
+      const double err = E.cwiseAbs().maxCoeff();
+      if (err > 0.5) break;  // outside the region of fast convergence
+      if (err < 1e-15) return X;
+      X -= 0.5 * X * E;
     }
   }
   Eigen::JacobiSVD<Mat3> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
@@ -73,6 +70,20 @@ Mat3 nearest_rotation(const Mat3& M) {
   const Mat3 V = svd.matrixV();
   if ((U * V.transpose()).determinant() < 0.0) U.col(2) = -U.col(2);
   return U * V.transpose();
+}
+
+// rotation_log for the small residual rotations of the per-edit loops: the axis-angle vector
+// from the skew part, theta / sin(theta) by its series below 0.1 rad; larger angles use
+// rotation_log (exact up to pi).
+inline Vec3 small_log(const Mat3& R) {
+  const Vec3 v(0.5 * (R(2, 1) - R(1, 2)), 0.5 * (R(0, 2) - R(2, 0)), 0.5 * (R(1, 0) - R(0, 1)));
+  const double s2 = v.squaredNorm();  // sin^2(theta)
+  const double c = 0.5 * (R.trace() - 1.0);
+  if (c > 0.995 && s2 < 0.01) {
+    // asin(s)/s = 1 + s^2/6 + 3 s^4/40 + 5 s^6/112 + 35 s^8/1152 (error < 3e-12 for s < 0.1)
+    return v * (1.0 + s2 * (1.0 / 6 + s2 * (3.0 / 40 + s2 * (5.0 / 112 + s2 * (35.0 / 1152)))));
+  }
+  return rotation_log(R);
 }
 
 // Rotation R minimising sum_i |R (p_i - mean p) - (q_i - mean q)|^2 (Kabsch). Points on a line
@@ -226,7 +237,8 @@ class RotationSolver {
  public:
   RotationSolver(int m, const IndexPairs& dual, const std::vector<std::array<int, 2>>& pairs,
                  double pair_weight, const std::vector<int>& fixed, int root,
-                 const std::vector<int>& penalty_faces, double penalty_weight)
+                 const std::vector<int>& penalty_faces, double penalty_weight,
+                 const std::vector<double>& edge_cost, const std::vector<double>& edge_weight)
       : m_(m), num_dual_(static_cast<int>(dual.rows())) {
     const int E = num_dual_, r = static_cast<int>(pairs.size());
     la_.resize(E + r);
@@ -235,7 +247,7 @@ class RotationSolver {
     for (int e = 0; e < E; ++e) {
       la_[e] = dual(e, 0);
       lb_[e] = dual(e, 1);
-      lw_[e] = 1.0;
+      lw_[e] = edge_weight.empty() ? 1.0 : edge_weight[e];
     }
     for (int q = 0; q < r; ++q) {
       la_[E + q] = pairs[q][0];
@@ -282,48 +294,120 @@ class RotationSolver {
       M.setFromTriplets(trip.begin(), trip.end());
       chol_ = std::make_unique<SparseCholesky>(M, SparseCholesky::Reuse::PerPose);
     }
-    // BFS tree over the dual edges from the fixed faces (or the root).
+    // Spanning tree of the gauge, grown from the fixed faces (or the root) by Prim's algorithm:
+    // edges whose relative rotation is small in every example first (ties in breadth-first
+    // order), so the few unreliable edges (strongly distorted faces) end up off the tree and
+    // their inconsistency stays local.
     std::vector<std::vector<int>> inc(m);
     for (int e = 0; e < E; ++e) {
       inc[la_[e]].push_back(e);
       inc[lb_[e]].push_back(e);
     }
     std::vector<char> seen(m, 0);
-    std::queue<int> todo;
-    const std::vector<int> roots = fixed.empty() ? std::vector<int>{root} : fixed;
-    for (int f : roots) {
-      if (!seen[f]) {
-        seen[f] = 1;
-        todo.push(f);
-      }
-    }
-    parent_link_.assign(m, -1);
-    while (!todo.empty()) {
-      const int f = todo.front();
-      todo.pop();
+    using Item = std::tuple<double, long, int>;  // cost, insertion order, edge
+    std::priority_queue<Item, std::vector<Item>, std::greater<Item>> heap;
+    long counter = 0;
+    auto push_edges = [&](int f) {
       for (int e : inc[f]) {
         const int g = la_[e] == f ? lb_[e] : la_[e];
-        if (seen[g]) continue;
-        seen[g] = 1;
-        parent_link_[g] = e;
-        order_.push_back(g);
-        todo.push(g);
+        if (!seen[g]) heap.emplace(edge_cost.empty() ? 0.0 : edge_cost[e], counter++, e);
       }
+    };
+    const std::vector<int> roots = fixed.empty() ? std::vector<int>{root} : fixed;
+    for (int f : roots) seen[f] = 1;
+    for (int f : roots) push_edges(f);
+    parent_link_.assign(m, -1);
+    while (!heap.empty()) {
+      const int e = std::get<2>(heap.top());
+      heap.pop();
+      const int g = seen[la_[e]] ? lb_[e] : la_[e];
+      if (seen[g]) continue;
+      seen[g] = 1;
+      parent_link_[g] = e;
+      order_.push_back(g);
+      push_edges(g);
     }
   }
 
-  // Q: one relative rotation per dual edge; G: one per rotational pair, or nullptr (pairs
-  // inactive); Z: targets of the penalty faces (indexed by face); init: a starting guess per
-  // face or nullptr. Writes m rotations (projected) to R; returns the CG iteration count.
+  // The same constraints with the geodesic energy sum_l w_l |log(R_a Q_l R_b^T)|^2 +
+  // sum_f lambda_f |log(Z_f R_f^T)|^2, by Gauss-Newton in the Lie algebra: with R = exp(xi) P,
+  // each link asks xi_b - xi_a = log(P_a Q_l P_b^T), a scalar Laplacian system (the constant
+  // preconditioner matrix itself) with three right-hand sides. P starts as the tree gauge (or
+  // init) and is updated by exp(xi) until max |xi| < 1e-10 or max_iterations solves. Exact in
+  // one solve when the relative rotations are consistent. Returns the number of solves.
+  int solve_log(const Matrix3Array& Q, const Matrix3Array* G, const Matrix3Array& Z,
+                const Matrix3Array* init, int max_iterations, Matrix3Array* R) const {
+    const int E = num_dual_, L = static_cast<int>(la_.size());
+    const int u = static_cast<int>(faces_.size());
+    Matrix3Array& P = *R;
+    P.assign(m_, Mat3::Identity());
+    if (init) {
+      for (int f : faces_) P[f] = (*init)[f];
+    } else {
+      for (int f : order_) {
+        const int e = parent_link_[f];
+        P[f] = la_[e] == f ? Mat3(P[lb_[e]] * Q[e].transpose()) : Mat3(P[la_[e]] * Q[e]);
+      }
+    }
+    if (u == 0) return 0;
+    active_.assign(L, 1);
+    for (int l = E; l < L; ++l) active_[l] = G ? 1 : 0;
+    d_.resize(L);
+    buf_in_.resize(static_cast<size_t>(3) * u);
+    buf_out_.resize(buf_in_.size());
+    int it = 0;
+    while (it < max_iterations) {
+      run(L, [&](int b, int e) {
+        for (int l = b; l < e; ++l) {
+          if (!active_[l]) continue;
+          const Mat3& q = l < E ? Q[l] : (*G)[l - E];
+          d_[l] = small_log(P[la_[l]] * q * P[lb_[l]].transpose());
+        }
+      });
+      run(u, [&](int b, int e) {
+        for (int i = b; i < e; ++i) {
+          const int f = faces_[i];
+          Vec3 acc = Vec3::Zero();
+          for (int k = adj_ptr_[i]; k < adj_ptr_[i + 1]; ++k) {
+            const int l = adj_[k] >> 1;
+            if (!active_[l]) continue;
+            acc += (adj_[k] & 1 ? lw_[l] : -lw_[l]) * d_[l];  // + for b, - for a
+          }
+          if (penalty_[f] > 0.0) acc += penalty_[f] * rotation_log(Z[f] * P[f].transpose());
+          for (int c = 0; c < 3; ++c) buf_in_[static_cast<size_t>(c) * u + i] = acc(c);
+        }
+      });
+      chol_->solve(buf_in_.data(), buf_out_.data(), 3);
+      ++it;
+      double change = 0.0;
+      for (int i = 0; i < u; ++i) {
+        const Vec3 xi(buf_out_[i], buf_out_[static_cast<size_t>(u) + i],
+                      buf_out_[static_cast<size_t>(2) * u + i]);
+        change = std::max(change, xi.norm());
+        P[faces_[i]] = rotation_exp(xi) * P[faces_[i]];
+      }
+      if (change < 1e-10) break;
+    }
+    return it;
+  }
+
+  // Chordal energy (the paper's linear step 1). Q: one relative rotation per dual edge; G: one
+  // per rotational pair, or nullptr (pairs inactive); Z: targets of the penalty faces (indexed
+  // by face); init: a rotation field used as the gauge and starting guess, or nullptr (the tree
+  // gauge). Writes m rotations (projected) to R; returns the CG iteration count.
   int solve(const Matrix3Array& Q, const Matrix3Array* G, const Matrix3Array& Z,
-            const Matrix3Array* init, Matrix3Array* R) const {
+            const Matrix3Array* init, int max_iterations, Matrix3Array* R) const {
     const int E = num_dual_, L = static_cast<int>(la_.size());
     const int u = static_cast<int>(faces_.size());
     Matrix3Array& P = P_;
     P.assign(m_, Mat3::Identity());
-    for (int f : order_) {
-      const int e = parent_link_[f];
-      P[f] = la_[e] == f ? Mat3(P[lb_[e]] * Q[e].transpose()) : Mat3(P[la_[e]] * Q[e]);
+    if (init) {
+      for (int f : faces_) P[f] = (*init)[f];  // the starting guess is the gauge
+    } else {
+      for (int f : order_) {
+        const int e = parent_link_[f];
+        P[f] = la_[e] == f ? Mat3(P[lb_[e]] * Q[e].transpose()) : Mat3(P[la_[e]] * Q[e]);
+      }
     }
     D_.resize(L);
     active_.assign(L, 1);
@@ -352,10 +436,10 @@ class RotationSolver {
         }
         if (penalty_[f] > 0.0) acc += penalty_[f] * Z[f] * P[f].transpose();
         B_[i] = acc;
-        X_[i] = init ? Mat3((*init)[f] * P[f].transpose()) : Mat3::Identity();
+        X_[i] = Mat3::Identity();
       }
     });
-    const int iterations = cg();
+    const int iterations = cg(max_iterations);
     run(u, [&](int b, int e) {
       for (int i = b; i < e; ++i) {
         const int f = faces_[i];
@@ -411,7 +495,7 @@ class RotationSolver {
     return s;
   }
 
-  int cg() const {
+  int cg(int max_iterations) const {
     const size_t u = faces_.size();
     Matrix3Array r(u), z(u), p(u), q(u);
     apply(X_, &q);
@@ -420,7 +504,7 @@ class RotationSolver {
     p = z;
     double rz = dot(r, z);
     int it = 0;
-    for (; it < kCgMaxIterations; ++it) {
+    for (; it < max_iterations; ++it) {
       const double scale = std::abs(dot(X_, B_));
       if (rz <= kCgTolerance * kCgTolerance * scale) break;
       apply(p, &q);
@@ -449,6 +533,7 @@ class RotationSolver {
   std::unique_ptr<SparseCholesky> chol_;
   // Per-call workspace.
   mutable Matrix3Array P_, D_, B_, X_;
+  mutable std::vector<Vec3> d_;
   mutable std::vector<char> active_;
   mutable std::vector<double> buf_in_, buf_out_;
 };
@@ -683,7 +768,8 @@ struct PoseSpaceDeformer::Impl {
   std::array<int, 3> frame_in_handles = {-1, -1, -1};  // position in handle_all, or -1
   Mat3 frame_rest_inverse = Mat3::Identity();
   Vec3 frame_rest_centroid = Vec3::Zero();
-  Vertices handle_rest;  // rest positions of handle_all
+  Vertices handle_rest;       // rest positions of handle_all
+  std::vector<int> oriented;  // handles whose orientation is part of the pose
   // Pose space.
   Interpolator interp_full, interp_positions;
   std::string positions_error;  // why the positions-only interpolator is unavailable
@@ -736,17 +822,30 @@ struct PoseSpaceDeformer::Impl {
 
   // Pose vector: handle centroids in the frame (over the bounding-box diagonal), then the joint
   // rotation logs (over pi) when given.
+  int pose_dim(bool joints) const {
+    return 3 * h + 3 * static_cast<int>(oriented.size()) + (joints ? 3 * r : 0);
+  }
+
+  // Pose vector: handle centroids in the frame (over the bounding-box diagonal), the handles'
+  // best-fit rotations relative to the frame (logs over pi, times orientation_weight; handles
+  // with at least three non-collinear vertices), then the joint rotation logs (over pi).
   Eigen::VectorXd pose_vector(const Vertices& targets, const Mat3& R, const Vec3& o,
                               const Matrix3Array* joints) const {
-    const int d = 3 * h + (joints ? 3 * r : 0);
-    Eigen::VectorXd x(d);
+    Eigen::VectorXd x(pose_dim(joints != nullptr));
     for (int j = 0; j < h; ++j) {
       const int b = handle_offset[j], e = handle_offset[j + 1];
       const Vec3 c = targets.middleRows(b, e - b).colwise().mean().transpose();
       x.segment<3>(3 * j) = R.transpose() * (c - o) / diag;
     }
+    int at = 3 * h;
+    for (int j : oriented) {
+      const int b = handle_offset[j], e = handle_offset[j + 1];
+      const Mat3 Rj = best_rotation(handle_rest.middleRows(b, e - b), targets.middleRows(b, e - b));
+      x.segment<3>(at) = opt.orientation_weight * rotation_log(R.transpose() * Rj) / kPi;
+      at += 3;
+    }
     if (joints) {
-      for (int q = 0; q < r; ++q) x.segment<3>(3 * h + 3 * q) = rotation_log((*joints)[q]) / kPi;
+      for (int q = 0; q < r; ++q) x.segment<3>(at + 3 * q) = rotation_log((*joints)[q]) / kPi;
     }
     return x;
   }
@@ -944,6 +1043,23 @@ struct PoseSpaceDeformer::Impl {
     return row;
   }
 
+  // final: the rotations step 2 uses. The natural shape of a call that also solves with the
+  // handle rotations only feeds the rigid fits and the start of that solve, so the Gauss-Newton
+  // gauge steps suffice for it.
+  int solve_rotations(const RotationSolver& solver, const Matrix3Array& Q, const Matrix3Array* G,
+                      const Matrix3Array& Z, const Matrix3Array* init, bool final,
+                      Matrix3Array* R) const {
+    if (!final) return solver.solve_log(Q, G, Z, init, opt.gauge_steps, R);
+    if (opt.rotation_energy == PoseSpaceOptions::RotationEnergy::kChordal) {
+      // Two Gauss-Newton steps of the geodesic energy give a gauge in which the chordal
+      // system is close to the constant preconditioner wherever the blend is consistent.
+      Matrix3Array gauge;
+      solver.solve_log(Q, G, Z, init, opt.gauge_steps, &gauge);
+      return solver.solve(Q, G, Z, &gauge, opt.rotation_iterations, R);
+    }
+    return solver.solve_log(Q, G, Z, init, opt.rotation_iterations, R);
+  }
+
   Vertices run(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
                const Eigen::Matrix4d* frame_transform) const;
 };
@@ -998,6 +1114,12 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     fail("weight_regularization: expected a finite value >= 0");
   }
   if (options.transfer_neighbors < 1) fail("transfer_neighbors: expected >= 1");
+  if (options.rotation_iterations < 1) fail("rotation_iterations: expected >= 1");
+  if (options.gauge_steps < 1) fail("gauge_steps: expected >= 1");
+  if (!(options.reliability_angle > 0.0)) fail("reliability_angle: expected a value > 0");
+  if (!(options.orientation_weight >= 0.0) || !std::isfinite(options.orientation_weight)) {
+    fail("orientation_weight: expected a finite value >= 0");
+  }
 
   // Examples.
   for (int k = 0; k < I.p; ++k) {
@@ -1087,6 +1209,13 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   }
 
   // Pose space.
+  if (options.orientation_weight > 0.0) {
+    for (int j = 0; j < I.h; ++j) {
+      const int b = I.handle_offset[j], e = I.handle_offset[j + 1];
+      if (e - b >= 3 && planarity(I.handle_rest.middleRows(b, e - b)) > 1e-3)
+        I.oriented.push_back(j);
+    }
+  }
   if (I.p >= 2) {
     if (I.h == 0 && I.r == 0) {
       fail(
@@ -1117,7 +1246,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
       fail("examples: a frame or rotational face is degenerate in an example");
     }
     if (I.r > 0) {
-      RowMatrix P(I.p, 3 * I.h + 3 * I.r);
+      RowMatrix P(I.p, I.pose_dim(true));
       for (int k = 0; k < I.p; ++k) P.row(k) = I.example_pose(examples[k], true).transpose();
       I.interp_full = Interpolator(P, options.weight_regularization, options.convex_weights);
     }
@@ -1126,7 +1255,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
           "rotations: required, because without handles the pose is given by the joint rotations "
           "alone";
     } else {
-      RowMatrix P(I.p, 3 * I.h);
+      RowMatrix P(I.p, I.pose_dim(false));
       for (int k = 0; k < I.p; ++k) P.row(k) = I.example_pose(examples[k], false).transpose();
       try {
         I.interp_positions = Interpolator(P, options.weight_regularization, options.convex_weights);
@@ -1347,16 +1476,29 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   }
 
   // Solvers.
+  std::vector<double> edge_cost(E, 0.0);
+  for (int e = 0; e < E; ++e)
+    for (int k = 0; k < I.p; ++k)
+      edge_cost[e] = std::max(edge_cost[e], I.omega.row(e).segment<3>(3 * k).norm());
+  // Reliability of each dual edge: strongly distorted faces in an example have ill-defined
+  // rotations, and their edges turn by up to pi; they count less (1/2 at reliability_angle).
+  std::vector<double> edge_weight(E, 1.0);
+  if (std::isfinite(options.reliability_angle)) {
+    for (int e = 0; e < E; ++e) {
+      const double x = edge_cost[e] / options.reliability_angle;
+      edge_weight[e] = 1.0 / (1.0 + x * x);
+    }
+  }
   I.grad = std::make_unique<GradientOperator>(I.lrest, I.lfaces);
   // The natural shape is solved with the root face fixed (or the frozen faces).
   I.rot_a = std::make_unique<RotationSolver>(
       lm, I.ldual, I.lpairs, options.joint_weight,
       I.lfixed_faces.empty() ? std::vector<int>{I.lroot} : I.lfixed_faces, I.lroot,
-      std::vector<int>{}, 0.0);
+      std::vector<int>{}, 0.0, edge_cost, edge_weight);
   if (!I.lhandle_faces.empty()) {
     I.rot_b = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight,
                                                I.lfixed_faces, I.lroot, I.lhandle_faces,
-                                               options.rotation_weight);
+                                               options.rotation_weight, edge_cost, edge_weight);
   }
   // Position penalty relative to the mean diagonal of the gradient term; with
   // multiresolution, dense rows are scaled by coarse/dense vertex counts so the balance
@@ -1395,7 +1537,8 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   // Step 1 and 2 without handles: the natural blended shape, up to a rigid motion.
   t0 = Clock::now();
   Matrix3Array R0;
-  stats.iterations_first = rot_a->solve(Q, G, Matrix3Array(), nullptr, &R0);
+  stats.iterations_first =
+      solve_rotations(*rot_a, Q, G, Matrix3Array(), nullptr, rot_b == nullptr, &R0);
   stats.ms_rotations += ms_since(t0);
   t0 = Clock::now();
   Matrix3Array T(lm);
@@ -1452,7 +1595,7 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
       const int f = lhandle_faces[s];
       Z[f] = Gj[lhandle_owner[s]] * R0[f];
     }
-    stats.iterations_second = rot_b->solve(Q, G, Z, &init, &R);
+    stats.iterations_second = solve_rotations(*rot_b, Q, G, Z, &init, true, &R);
   } else {
     for (int i = 0; i < lm; ++i) R[i] = Gall * R0[i];
   }

@@ -54,6 +54,17 @@ class PoseSpaceDeformer:
         largest entry (default 0: exact 1/0 weights at the examples).
     convex_weights : bool, clip negative example weights and renormalise (default False).
     transfer_neighbors : int >= 1, coarse vertices each dense vertex follows (default 8).
+    orientation_weight : float >= 0, weight of the handles' own orientations (relative to the
+        frame) in the pose vector; 0 uses the handle positions only (default 1).
+    rotation_energy : "chordal" (the paper: sum |R_b - R_a Q|^2, then projection; default) or
+        "geodesic" (sum |log(R_a Q R_b^T)|^2 by Gauss-Newton, faster, less robust).
+    rotation_iterations : int >= 1, most conjugate-gradient iterations (chordal) or
+        Gauss-Newton steps (geodesic) per rotation solve (default 10).
+    gauge_steps : int >= 1, Gauss-Newton steps making the chordal solve's gauge, and the whole
+        solve of the natural shape when handle rotations follow (default 2).
+    reliability_angle : float > 0 (radians) or inf. Dual edges whose relative rotation reaches
+        it in some example weigh 1/2 in step 1, w = 1/(1 + (angle/reliability_angle)^2)
+        (default 0.5); inf weighs all edges 1.
     """
 
     def __init__(
@@ -74,6 +85,11 @@ class PoseSpaceDeformer:
         weight_regularization: float = 0.0,
         convex_weights: bool = False,
         transfer_neighbors: int = 8,
+        rotation_energy: str = "chordal",
+        rotation_iterations: int = 10,
+        reliability_angle: float = 0.5,
+        orientation_weight: float = 1.0,
+        gauge_steps: int = 2,
     ):
         v = as_vertices(vertices)
         f = as_faces(faces, v.shape[0])
@@ -112,6 +128,22 @@ class PoseSpaceDeformer:
         tn = _as_index(transfer_neighbors, None, "transfer_neighbors")
         if tn < 1:
             raise ValueError(f"transfer_neighbors: expected an int >= 1, got {tn}")
+        for name, val in (
+            ("rotation_iterations", rotation_iterations),
+            ("gauge_steps", gauge_steps),
+        ):
+            if _as_index(val, None, name) < 1:
+                raise ValueError(f"{name}: expected an int >= 1, got {val}")
+        if rotation_energy not in ("chordal", "geodesic"):
+            raise ValueError(
+                f"rotation_energy: expected 'chordal' or 'geodesic', got {rotation_energy!r}"
+            )
+        if not (reliability_angle > 0):
+            raise ValueError(f"reliability_angle: expected a value > 0, got {reliability_angle!r}")
+        if not (np.isfinite(orientation_weight) and orientation_weight >= 0):
+            raise ValueError(
+                f"orientation_weight: expected a finite value >= 0, got {orientation_weight!r}"
+            )
         self._n, self._m, self._p = n, m, len(ex)
         self._sizes = [len(h) for h in hs]
         self._r = len(rot)
@@ -132,6 +164,11 @@ class PoseSpaceDeformer:
             float(weight_regularization),
             bool(convex_weights),
             tn,
+            rotation_energy,
+            int(rotation_iterations),
+            float(reliability_angle),
+            float(orientation_weight),
+            int(gauge_steps),
         )
 
     def deform(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:

@@ -46,6 +46,22 @@ struct PoseSpaceOptions {
   double rotation_weight = 1.0;  // faces inside a handle follow its best-fit rotation
   double joint_weight = 100.0;   // rotational pairs
   bool handle_rotations = true;  // false: translational handles do not constrain step 1
+  // Step 1 energy. Chordal (the paper, default): sum w_e |R_b - R_a Q|^2, then projection to
+  // rotations; solved by conjugate gradients preconditioned with the scalar face-graph
+  // Laplacian factored once, in the gauge of two Gauss-Newton steps of the geodesic energy.
+  // Geodesic: sum w_e |log(R_a Q R_b^T)|^2 by Gauss-Newton steps in the Lie algebra alone,
+  // each one substitution with that factor (faster, less robust to unreliable edges).
+  enum class RotationEnergy { kChordal, kGeodesic };
+  RotationEnergy rotation_energy = RotationEnergy::kChordal;
+  int rotation_iterations = 10;  // at most: CG iterations (chordal) or Gauss-Newton steps, >= 1
+  // Gauss-Newton steps that make the chordal solve's gauge; they are also the whole solve of
+  // the natural shape when a solve with the handle rotations follows (>= 1).
+  int gauge_steps = 2;
+  // Dual edges whose relative rotation reaches this angle (radians) in some example weigh 1/2
+  // in step 1, w_e = 1 / (1 + (max_k angle_ek / reliability_angle)^2); infinity: all 1.
+  double reliability_angle = 0.5;
+  // Weight of the handles' own orientations in the pose vector (0: positions only).
+  double orientation_weight = 1.0;
   // Example weights: ridge added to the kernel matrix, relative to its largest entry (>= 0; 0
   // interpolates exactly), and whether negative weights are clipped and the rest renormalised.
   double weight_regularization = 0.0;
