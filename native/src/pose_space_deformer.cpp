@@ -162,7 +162,7 @@ int nearest_face(const Vertices& V, const Faces& F, const Vec3& point) {
 // ------------------------------------------------------------------------------------------
 // Cardinal radial basis interpolation of the example weights.
 //
-// w(x) = A^T phi(x) + b with phi_l(x) = |x - P_l| and [Phi + mu I, 1; 1^T, 0] [A; b^T] = [I; 0].
+// w(x) = A^T phi(x) + b with phi_l(x) = |x - P_l| and [Phi - mu I, 1; 1^T, 0] [A; b^T] = [I; 0].
 // Phi symmetric makes A symmetric with zero row sums, so sum_k w_k = 1 everywhere; with mu = 0,
 // w(P_k) = e_k. phi(r) = r is conditionally positive definite of order 1: the system is
 // non-singular for distinct centres, and with the constant term the weights stay bounded
@@ -189,7 +189,10 @@ class Interpolator {
     }
     Eigen::MatrixXd S = Eigen::MatrixXd::Zero(p + 1, p + 1);
     S.topLeftCorner(p, p) = Phi;
-    S.topLeftCorner(p, p).diagonal().array() += regularization * big;
+    // phi(r) = r is conditionally negative definite: -Phi is the positive (energy) matrix on
+    // sum a = 0, so the smoothing ridge is subtracted. It pulls the weights at the examples
+    // towards mixtures and keeps the partition of unity.
+    S.topLeftCorner(p, p).diagonal().array() -= regularization * big;
     S.topRightCorner(p, 1).setOnes();
     S.bottomLeftCorner(1, p).setOnes();
     Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(p + 1, p);

@@ -62,7 +62,7 @@ struct PoseSpaceOptions {
   double reliability_angle = 0.5;
   // Weight of the handles' own orientations in the pose vector (0: positions only).
   double orientation_weight = 1.0;
-  // Example weights: ridge added to the kernel matrix, relative to its largest entry (>= 0; 0
+  // Example weights: smoothing ridge on the kernel matrix, relative to its largest entry (>= 0; 0
   // interpolates exactly), and whether negative weights are clipped and the rest renormalised.
   double weight_regularization = 0.0;
   bool convex_weights = false;
