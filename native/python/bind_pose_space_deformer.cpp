@@ -29,7 +29,8 @@ void bind_pose_space_deformer(py::module_& m) {
                        double rotation_weight, double joint_weight, bool handle_rotations,
                        double weight_regularization, bool convex_weights, int transfer_neighbors,
                        const std::string& rotation_energy, int rotation_iterations,
-                       double reliability_angle, double orientation_weight, int gauge_steps) {
+                       double reliability_angle, double orientation_weight, int gauge_steps,
+                       bool area_weights) {
              PoseSpaceOptions o;
              o.frame = frame;
              o.rotational = rotational;
@@ -51,6 +52,7 @@ void bind_pose_space_deformer(py::module_& m) {
              o.reliability_angle = reliability_angle;
              o.orientation_weight = orientation_weight;
              o.gauge_steps = gauge_steps;
+             o.area_weights = area_weights;
              py::gil_scoped_release release;
              return std::make_unique<PoseSpaceDeformer>(vertices, faces, examples, handles, o);
            }),
@@ -60,7 +62,8 @@ void bind_pose_space_deformer(py::module_& m) {
            py::arg("handle_rotations"), py::arg("weight_regularization"), py::arg("convex_weights"),
            py::arg("transfer_neighbors"), py::arg("rotation_energy") = "chordal",
            py::arg("rotation_iterations") = 10, py::arg("reliability_angle") = 0.5,
-           py::arg("orientation_weight") = 1.0, py::arg("gauge_steps") = 2)
+           py::arg("orientation_weight") = 1.0, py::arg("gauge_steps") = 2,
+           py::arg("area_weights") = false)
       .def(
           "deform",
           [](const PoseSpaceDeformer& self, const std::vector<Vertices>& handle_positions,

@@ -9,6 +9,7 @@
 #include <chrono>
 #include <cmath>
 #include <functional>
+#include <map>
 #include <numeric>
 #include <queue>
 #include <stdexcept>
@@ -549,15 +550,22 @@ class RotationSolver {
 // at rest. Each fourth vertex appears in one face only and is eliminated exactly per face
 // (Schur complement), so the system has one unknown per vertex and three right-hand sides.
 struct GradientOperator {
-  // Per face: the rows of (D E) for a, b, c after eliminating the fourth vertex (G'), and the
-  // 3x3 Schur block of the face's Hessian.
+  // Per face, times its weight: the rows of (D E) for a, b, c after eliminating the fourth
+  // vertex (G'), and the 3x3 Schur block of the face's Hessian. With area weights (area over
+  // the mean area) the energy is the integral of |grad x - T|^2; a sliver's gradient terms grow
+  // like 1/width^2, and unweighted they would dominate (coarse meshes have slivers).
   std::vector<Mat3> Gp, Hp;
   double mean_diagonal = 1.0;
 
-  GradientOperator(const Vertices& V, const Faces& F) {
+  GradientOperator(const Vertices& V, const Faces& F, bool area_weights) {
     const Eigen::Index m = F.rows();
     Gp.resize(m);
     Hp.resize(m);
+    Eigen::VectorXd weight = Eigen::VectorXd::Ones(m);
+    if (area_weights) {
+      weight = double_areas(V, F);
+      weight /= weight.mean();
+    }
     Eigen::VectorXd diag = Eigen::VectorXd::Zero(V.rows());
     for (Eigen::Index i = 0; i < m; ++i) {
       const Mat3 Vf = face_frame(V.row(F(i, 0)), V.row(F(i, 1)), V.row(F(i, 2)));
@@ -572,8 +580,8 @@ struct GradientOperator {
       const Eigen::Matrix4d H = G * G.transpose();
       const Eigen::Vector3d h = H.block<3, 1>(0, 3);
       const double hdd = H(3, 3);
-      Gp[i] = G.topRows<3>() - (h / hdd) * G.row(3);
-      Hp[i] = H.topLeftCorner<3, 3>() - h * h.transpose() / hdd;
+      Gp[i] = weight(i) * (G.topRows<3>() - (h / hdd) * G.row(3));
+      Hp[i] = weight(i) * (H.topLeftCorner<3, 3>() - h * h.transpose() / hdd);
       for (int l = 0; l < 3; ++l) diag(F(i, l)) += Hp[i](l, l);
     }
     mean_diagonal = diag.mean();
@@ -729,6 +737,63 @@ void simplify_mesh(const Vertices& V, const Faces& F, int target_faces,
   }
 }
 
+// Delaunay-style edge flips on the coarse mesh: quadric simplification optimises geometric
+// error, not shape, and leaves long slivers whose deformation gradients are meaningless when the
+// surface bends across them. An edge (a, b) between triangles (a, b, c) and (b, a, d) is flipped
+// to (c, d) when the angles at c and d sum to more than pi, (c, d) is not an edge yet, and both
+// new triangles keep the orientation of the old pair (normals within 30 degrees). Vertices are
+// untouched, so coarse vertices stay dense vertices.
+void flip_slivers(const Vertices& V, Faces* F) {
+  const int m = static_cast<int>(F->rows());
+  auto P = [&](int v) { return Vec3(V.row(v).transpose()); };
+  auto angle = [&](int at, int u, int w) {
+    const Vec3 x = P(u) - P(at), y = P(w) - P(at);
+    return std::atan2(x.cross(y).norm(), x.dot(y));
+  };
+  for (int pass = 0; pass < 50; ++pass) {
+    std::map<std::pair<int, int>, std::vector<int>> edge_faces;
+    for (int f = 0; f < m; ++f)
+      for (int k = 0; k < 3; ++k) {
+        const int a = (*F)(f, k), b = (*F)(f, (k + 1) % 3);
+        edge_faces[{std::min(a, b), std::max(a, b)}].push_back(f);
+      }
+    std::vector<char> touched(m, 0);
+    int flips = 0;
+    for (const auto& [edge, fs] : edge_faces) {
+      if (fs.size() != 2 || touched[fs[0]] || touched[fs[1]]) continue;
+      const int f1 = fs[0], f2 = fs[1];
+      // Orient: f1 = (a, b, c) with a -> b, f2 holding b -> a with opposite d.
+      int a = -1, b = -1, c = -1, d = -1;
+      for (int k = 0; k < 3; ++k) {
+        const int x = (*F)(f1, k), y = (*F)(f1, (k + 1) % 3);
+        if (std::min(x, y) == edge.first && std::max(x, y) == edge.second) {
+          a = x;
+          b = y;
+          c = (*F)(f1, (k + 2) % 3);
+        }
+      }
+      for (int k = 0; k < 3; ++k) {
+        if ((*F)(f2, k) != a && (*F)(f2, k) != b) d = (*F)(f2, k);
+      }
+      if (c == d || d < 0 || edge_faces.count({std::min(c, d), std::max(c, d)})) continue;
+      if (angle(c, a, b) + angle(d, b, a) <= kPi + 1e-9) continue;
+      const Vec3 n_old = (P(b) - P(a)).cross(P(c) - P(a)).normalized() +
+                         (P(a) - P(b)).cross(P(d) - P(b)).normalized();
+      const Vec3 n1 = (P(a) - P(c)).cross(P(d) - P(c)), n2 = (P(d) - P(c)).cross(P(b) - P(c));
+      const double cos30 = 0.8660254037844386 * n_old.norm();
+      if (n1.norm() == 0.0 || n2.norm() == 0.0 || n1.normalized().dot(n_old) < cos30 ||
+          n2.normalized().dot(n_old) < cos30) {
+        continue;
+      }
+      F->row(f1) << c, a, d;
+      F->row(f2) << c, d, b;
+      touched[f1] = touched[f2] = 1;
+      ++flips;
+    }
+    if (flips == 0) break;
+  }
+}
+
 // Mesh edges (a < b), unique.
 IndexPairs mesh_edges(const Faces& F) {
   std::vector<std::pair<int, int>> e;
@@ -800,6 +865,7 @@ struct PoseSpaceDeformer::Impl {
   std::vector<double> tr_w;
   RowMatrix detail;
   std::vector<int> vf_ptr, vf_idx;  // coarse vertex -> coarse faces
+  Eigen::VectorXd larea;            // coarse face areas: slivers count little in vertex rotations
   // Last call.
   mutable Eigen::VectorXd last_weights;
   mutable PoseSpaceStats stats;
@@ -998,7 +1064,7 @@ struct PoseSpaceDeformer::Impl {
     Rv->resize(nc);
     for (int c = 0; c < nc; ++c) {
       Mat3 sum = Mat3::Zero();
-      for (int k = vf_ptr[c]; k < vf_ptr[c + 1]; ++k) sum += Rf[vf_idx[k]];
+      for (int k = vf_ptr[c]; k < vf_ptr[c + 1]; ++k) sum += larea[vf_idx[k]] * Rf[vf_idx[k]];
       (*Rv)[c] = nearest_rotation(sum);
     }
   }
@@ -1280,6 +1346,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     I.multires = true;
     simplify_mesh(vertices, faces, target, &I.lvertices, &I.lfaces);
     I.lrest = gather_rows(vertices, I.lvertices);
+    flip_slivers(I.lrest, &I.lfaces);
     {
       const Eigen::VectorXd a2 = double_areas(I.lrest, I.lfaces);
       for (Eigen::Index f = 0; f < a2.size(); ++f) {
@@ -1344,6 +1411,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
       }
       I.tr_ptr.push_back(static_cast<int>(I.tr_idx.size()));
     }
+    I.larea = double_areas(I.lrest, I.lfaces);
     std::vector<int> cnt(ln + 1, 0);
     for (int f = 0; f < lm; ++f)
       for (int l = 0; l < 3; ++l) ++cnt[I.lfaces(f, l) + 1];
@@ -1492,7 +1560,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
       edge_weight[e] = 1.0 / (1.0 + x * x);
     }
   }
-  I.grad = std::make_unique<GradientOperator>(I.lrest, I.lfaces);
+  I.grad = std::make_unique<GradientOperator>(I.lrest, I.lfaces, options.area_weights);
   // The natural shape is solved with the root face fixed (or the frozen faces).
   I.rot_a = std::make_unique<RotationSolver>(
       lm, I.ldual, I.lpairs, options.joint_weight,

@@ -62,6 +62,8 @@ class PoseSpaceDeformer:
         Gauss-Newton steps (geodesic) per rotation solve (default 10).
     gauge_steps : int >= 1, Gauss-Newton steps making the chordal solve's gauge, and the whole
         solve of the natural shape when handle rotations follow (default 2).
+    area_weights : bool, step 2 weighs each face by its rest area (the integral of
+        |grad x - R S|^2) instead of 1 per face as MeshIK does (default False).
     reliability_angle : float > 0 (radians) or inf. Dual edges whose relative rotation reaches
         it in some example weigh 1/2 in step 1, w = 1/(1 + (angle/reliability_angle)^2)
         (default 0.5); inf weighs all edges 1.
@@ -90,6 +92,7 @@ class PoseSpaceDeformer:
         reliability_angle: float = 0.5,
         orientation_weight: float = 1.0,
         gauge_steps: int = 2,
+        area_weights: bool = False,
     ):
         v = as_vertices(vertices)
         f = as_faces(faces, v.shape[0])
@@ -169,6 +172,7 @@ class PoseSpaceDeformer:
             float(reliability_angle),
             float(orientation_weight),
             int(gauge_steps),
+            bool(area_weights),
         )
 
     def deform(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:

@@ -67,6 +67,7 @@ class Reference:
         joint_weight=100.0,
         orientation_weight=1.0,
         reliability_angle=0.5,
+        area_weights=False,
     ):
         self.V, self.F = np.asarray(V, float), np.asarray(F)
         self.ex = [np.asarray(e, float) for e in examples]
@@ -113,11 +114,14 @@ class Reference:
         # step-2 penalty scale: mean diagonal of the fourth-vertex-eliminated matrix
         diag = np.zeros(len(self.V))
         D = np.array([[-1, -1, -1], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+        a, b, c = (self.V[self.F[:, k]] for k in range(3))
+        area = np.linalg.norm(np.cross(b - a, c - a), axis=1)
+        self.area = area / area.mean() if area_weights else np.ones(len(self.F))
         self.Gs = []
-        for f in self.F:
+        for i, f in enumerate(self.F):
             G = D @ np.linalg.inv(frame(*self.V[f]))
             self.Gs.append(G)
-            Hm = G @ G.T
+            Hm = self.area[i] * G @ G.T
             for lc in range(3):
                 diag[f[lc]] += Hm[lc, lc] - Hm[lc, 3] ** 2 / Hm[3, 3]
         self.lam_p = position_weight * diag.mean()
@@ -215,19 +219,20 @@ class Reference:
 
     # --- step 2
     def positions(self, T, rows):
-        """min sum |X_i E_i - T_i|^2 + lam sum |x_v - t_v|^2, explicit fourth vertices. rows:
+        """min sum a_i |X_i E_i - T_i|^2 + lam sum |x_v - t_v|^2, explicit fourth vertices. rows:
         list of (v, t); without rows the translation is fixed by the rest vertex mean."""
         n, m = len(self.V), len(self.F)
         A, B = [], []
         for i, f in enumerate(self.F):
             G = self.Gs[i]
             idx = [*f, n + i]
+            s = np.sqrt(self.area[i])
             for c in range(3):
                 row = np.zeros(n + m)
                 for j in range(4):
-                    row[idx[j]] += G[j, c]
+                    row[idx[j]] += s * G[j, c]
                 A.append(row)
-                B.append(T[i][:, c])
+                B.append(s * T[i][:, c])
         for v, t in rows:
             row = np.zeros(n + m)
             row[v] = np.sqrt(self.lam_p)

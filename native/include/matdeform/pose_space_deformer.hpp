@@ -46,6 +46,7 @@ struct PoseSpaceOptions {
   double rotation_weight = 1.0;  // faces inside a handle follow its best-fit rotation
   double joint_weight = 100.0;   // rotational pairs
   bool handle_rotations = true;  // false: translational handles do not constrain step 1
+  bool area_weights = false;     // step 2 weighs faces by rest area (default: every face 1)
   // Step 1 energy. Chordal (the paper, default): sum w_e |R_b - R_a Q|^2, then projection to
   // rotations; solved by conjugate gradients preconditioned with the scalar face-graph
   // Laplacian factored once, in the gauge of two Gauss-Newton steps of the geodesic energy.
