@@ -127,12 +127,47 @@ def measure(name, v, f, examples, handles, repeats, coarse):
     }
 
 
+def refactor_ms(faces, repeats=3):
+    """What the paper's per-edit step would cost: factoring the 3m x 3m chordal rotation system
+    (3x3 blocks D per dual edge; random small rotations, one face held) with SuperLU via scipy
+    (no sparse Cholesky in scipy; CHOLMOD is in the same range, see docs/pose_space.md)."""
+    import scipy.sparse as sp
+    from scipy.sparse.linalg import splu
+
+    pairs = md.dual_edges(faces)
+    m = len(faces)
+    rng = np.random.default_rng(0)
+    rows, cols, vals = [], [], []
+    diag = np.full(3 * m, 1e-9)
+    diag[:3] = 1e3
+    for a, b in pairs:
+        D = rot(rng.normal(size=3), rng.normal(scale=0.1))
+        for c in range(3):
+            diag[3 * a + c] += 1
+            diag[3 * b + c] += 1
+        for r in range(3):
+            for c in range(3):
+                rows += [3 * b + r, 3 * a + c]
+                cols += [3 * a + c, 3 * b + r]
+                vals += [-D[c, r], -D[c, r]]
+    A = sp.csc_matrix((vals, (rows, cols)), shape=(3 * m, 3 * m)) + sp.diags(diag)
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        splu(A.tocsc(), permc_spec="COLAMD")
+        best = min(best, time.perf_counter() - t0)
+    return best * 1e3
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=30)
     ap.add_argument("--threads", type=int, default=None)
     ap.add_argument("--examples", type=int, default=10)
-    ap.add_argument("--cases", nargs="+", default=["17k", "17k-multires", "140k-multires"])
+    ap.add_argument("--cases", nargs="*", default=["17k", "17k-multires", "140k-multires"])
+    ap.add_argument(
+        "--refactor", action="store_true", help="also time a per-edit factorisation (scipy)"
+    )
     args = ap.parse_args()
     if args.threads:
         md.set_num_threads(args.threads)
@@ -175,6 +210,14 @@ def main():
             f"{s['iterations_first']:.0f}+{s['iterations_second']:.0f} | {met} |",
             flush=True,
         )
+    if args.refactor:
+        for faces in (1000, 17_000):
+            _, f, _ = tube_case(faces)
+            print(
+                f"per-edit factorisation of the chordal rotation system, {len(f)} faces: "
+                f"{refactor_ms(f):.1f} ms (SuperLU, best of 3)",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":
