@@ -30,7 +30,7 @@ void bind_pose_space_deformer(py::module_& m) {
                        double weight_regularization, bool convex_weights, int transfer_neighbors,
                        const std::string& rotation_energy, int rotation_iterations,
                        double reliability_angle, double orientation_weight, int gauge_steps,
-                       bool area_weights) {
+                       bool area_weights, double rotation_tolerance) {
              PoseSpaceOptions o;
              o.frame = frame;
              o.rotational = rotational;
@@ -53,6 +53,7 @@ void bind_pose_space_deformer(py::module_& m) {
              o.orientation_weight = orientation_weight;
              o.gauge_steps = gauge_steps;
              o.area_weights = area_weights;
+             o.rotation_tolerance = rotation_tolerance;
              py::gil_scoped_release release;
              return std::make_unique<PoseSpaceDeformer>(vertices, faces, examples, handles, o);
            }),
@@ -63,7 +64,7 @@ void bind_pose_space_deformer(py::module_& m) {
            py::arg("transfer_neighbors"), py::arg("rotation_energy") = "chordal",
            py::arg("rotation_iterations") = 10, py::arg("reliability_angle") = 0.5,
            py::arg("orientation_weight") = 1.0, py::arg("gauge_steps") = 2,
-           py::arg("area_weights") = false)
+           py::arg("area_weights") = false, py::arg("rotation_tolerance") = 1e-6)
       .def(
           "deform",
           [](const PoseSpaceDeformer& self, const std::vector<Vertices>& handle_positions,
@@ -100,6 +101,8 @@ void bind_pose_space_deformer(py::module_& m) {
                                d["ms_positions"] = s.ms_positions;
                                d["ms_fit"] = s.ms_fit;
                                d["ms_transfer"] = s.ms_transfer;
+                               d["ms_gauge"] = s.ms_gauge;
+                               d["ms_chordal"] = s.ms_chordal;
                                return d;
                              })
       .def_property_readonly("multiresolution", &PoseSpaceDeformer::multiresolution)

@@ -33,9 +33,6 @@ using Vec3 = Eigen::Vector3d;
 using Mat3 = Eigen::Matrix3d;
 
 constexpr double kPi = 3.14159265358979323846;
-// Conjugate gradients stop when the energy-norm error estimate is below this fraction of the
-// solution's energy norm, or at PoseSpaceOptions::rotation_iterations.
-constexpr double kCgTolerance = 1e-11;
 // Per-edit loops over faces or vertices: below this size they run serially.
 constexpr int kParallelMin = 4096;
 constexpr int kTasks = 8;
@@ -51,20 +48,25 @@ std::string item(const char* name, size_t i) {
 }
 
 // Nearest proper rotation in the Frobenius norm (the rotation factor of the polar
-// decomposition). Step 1 produces near-rotations: for those the Newton-Schulz iteration
-// X <- X (3 I - X^T X) / 2 converges quadratically with two matrix products per step and no
-// division; anything farther from orthogonal (or with det <= 0) goes through an SVD.
+// decomposition). Least-squares rotations come out near-orthogonal up to a scale (averages of
+// rotations shrink). Scaled Newton steps X <- (g X + X^-T / g) / 2, g = det(X)^(-1/3), remove
+// the scale and converge for any det > 0; once X is close to orthogonal, Newton-Schulz steps
+// X <- X (3 I - X^T X) / 2 finish without divisions. det <= 0 goes through an SVD.
 Mat3 nearest_rotation(const Mat3& M) {
   if (!M.allFinite()) return Mat3::Identity();
-  if (M.determinant() > 0.0) {
-    Mat3 X = M;
-    for (int it = 0; it < 12; ++it) {
-      const Mat3 E = X.transpose() * X - Mat3::Identity();
-      const double err = E.cwiseAbs().maxCoeff();
-      if (err > 0.5) break;  // outside the region of fast convergence
-      if (err < 1e-15) return X;
+  Mat3 X = M;
+  for (int it = 0; it < 40; ++it) {
+    const Mat3 E = X.transpose() * X - Mat3::Identity();
+    const double err = E.cwiseAbs().maxCoeff();
+    if (err < 1e-15) return X;
+    if (err < 0.1) {
       X -= 0.5 * X * E;
+      continue;
     }
+    const double d = X.determinant();
+    if (!(d > 0.0)) break;
+    const double g = 1.0 / std::cbrt(d);
+    X = 0.5 * (g * X + X.inverse().transpose() / g);
   }
   Eigen::JacobiSVD<Mat3> svd(M, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Mat3 U = svd.matrixU();
@@ -400,7 +402,7 @@ class RotationSolver {
   // by face); init: a rotation field used as the gauge and starting guess, or nullptr (the tree
   // gauge). Writes m rotations (projected) to R; returns the CG iteration count.
   int solve(const Matrix3Array& Q, const Matrix3Array* G, const Matrix3Array& Z,
-            const Matrix3Array* init, int max_iterations, Matrix3Array* R) const {
+            const Matrix3Array* init, int max_iterations, double tolerance, Matrix3Array* R) const {
     const int E = num_dual_, L = static_cast<int>(la_.size());
     const int u = static_cast<int>(faces_.size());
     Matrix3Array& P = P_;
@@ -443,7 +445,7 @@ class RotationSolver {
         X_[i] = Mat3::Identity();
       }
     });
-    const int iterations = cg(max_iterations);
+    const int iterations = cg(max_iterations, tolerance);
     run(u, [&](int b, int e) {
       for (int i = b; i < e; ++i) {
         const int f = faces_[i];
@@ -499,7 +501,9 @@ class RotationSolver {
     return s;
   }
 
-  int cg(int max_iterations) const {
+  // Stops when the energy-norm error estimate sqrt(r . M^-1 r) is below `tolerance` times the
+  // solution's energy norm sqrt(x . b), or after max_iterations.
+  int cg(int max_iterations, double tolerance) const {
     const size_t u = faces_.size();
     Matrix3Array r(u), z(u), p(u), q(u);
     apply(X_, &q);
@@ -510,7 +514,7 @@ class RotationSolver {
     int it = 0;
     for (; it < max_iterations; ++it) {
       const double scale = std::abs(dot(X_, B_));
-      if (rz <= kCgTolerance * kCgTolerance * scale) break;
+      if (rz <= tolerance * tolerance * scale) break;
       apply(p, &q);
       const double pq = dot(p, q);
       if (!(pq > 0.0)) break;
@@ -1123,8 +1127,14 @@ struct PoseSpaceDeformer::Impl {
       // Two Gauss-Newton steps of the geodesic energy give a gauge in which the chordal
       // system is close to the constant preconditioner wherever the blend is consistent.
       Matrix3Array gauge;
+      const auto t0 = Clock::now();
       solver.solve_log(Q, G, Z, init, opt.gauge_steps, &gauge);
-      return solver.solve(Q, G, Z, &gauge, opt.rotation_iterations, R);
+      const auto t1 = Clock::now();
+      const int it =
+          solver.solve(Q, G, Z, &gauge, opt.rotation_iterations, opt.rotation_tolerance, R);
+      stats.ms_chordal += ms_since(t1);
+      stats.ms_gauge += std::chrono::duration<double, std::milli>(t1 - t0).count();
+      return it;
     }
     return solver.solve_log(Q, G, Z, init, opt.rotation_iterations, R);
   }
@@ -1185,6 +1195,9 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   if (options.transfer_neighbors < 1) fail("transfer_neighbors: expected >= 1");
   if (options.rotation_iterations < 1) fail("rotation_iterations: expected >= 1");
   if (options.gauge_steps < 1) fail("gauge_steps: expected >= 1");
+  if (!(options.rotation_tolerance > 0.0) || !(options.rotation_tolerance < 1.0)) {
+    fail("rotation_tolerance: expected a value in (0, 1)");
+  }
   if (!(options.reliability_angle > 0.0)) fail("reliability_angle: expected a value > 0");
   if (!(options.orientation_weight >= 0.0) || !std::isfinite(options.orientation_weight)) {
     fail("orientation_weight: expected a finite value >= 0");

@@ -60,6 +60,8 @@ class PoseSpaceDeformer:
         "geodesic" (sum |log(R_a Q R_b^T)|^2 by Gauss-Newton, faster, less robust).
     rotation_iterations : int >= 1, most conjugate-gradient iterations (chordal) or
         Gauss-Newton steps (geodesic) per rotation solve (default 10).
+    rotation_tolerance : float in (0, 1), relative energy-norm error at which the chordal CG
+        stops (default 1e-6; results are independent of the numbering to about this level).
     gauge_steps : int >= 1, Gauss-Newton steps making the chordal solve's gauge, and the whole
         solve of the natural shape when handle rotations follow (default 2).
     area_weights : bool, step 2 weighs each face by its rest area (the integral of
@@ -93,6 +95,7 @@ class PoseSpaceDeformer:
         orientation_weight: float = 1.0,
         gauge_steps: int = 2,
         area_weights: bool = False,
+        rotation_tolerance: float = 1e-6,
     ):
         v = as_vertices(vertices)
         f = as_faces(faces, v.shape[0])
@@ -141,6 +144,10 @@ class PoseSpaceDeformer:
             raise ValueError(
                 f"rotation_energy: expected 'chordal' or 'geodesic', got {rotation_energy!r}"
             )
+        if not (0 < rotation_tolerance < 1):
+            raise ValueError(
+                f"rotation_tolerance: expected a value in (0, 1), got {rotation_tolerance!r}"
+            )
         if not (reliability_angle > 0):
             raise ValueError(f"reliability_angle: expected a value > 0, got {reliability_angle!r}")
         if not (np.isfinite(orientation_weight) and orientation_weight >= 0):
@@ -173,6 +180,7 @@ class PoseSpaceDeformer:
             float(orientation_weight),
             int(gauge_steps),
             bool(area_weights),
+            float(rotation_tolerance),
         )
 
     def deform(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:

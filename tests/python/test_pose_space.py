@@ -85,7 +85,12 @@ def in_between(ex, handles, seed=0):
 @pytest.mark.parametrize("handle_rotations", [True, False])
 def test_matches_dense_reference(scene, handle_rotations):
     v, f, ex, handles = scene
-    kw = dict(rotation_iterations=500, gauge_steps=100, handle_rotations=handle_rotations)
+    kw = dict(
+        rotation_iterations=500,
+        gauge_steps=100,
+        rotation_tolerance=1e-12,
+        handle_rotations=handle_rotations,
+    )
     d = md.PoseSpaceDeformer(v, f, ex, handles, **kw)
     hp = in_between(ex, handles)
     X = d.deform(hp)
@@ -103,7 +108,7 @@ def test_matches_dense_reference_with_joint_and_no_examples():
     handles = [rings(0, 1), rings(7, 8)]
     pair = [(3, len(f) - 12)]
     G = rotation([0, 1, 1], 0.6)[None]
-    kw = dict(rotation_iterations=500, gauge_steps=100)
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
     d = md.PoseSpaceDeformer(v, f, [], handles, rotational=pair, **kw)
     rng = np.random.default_rng(3)
     hp = [v[h] + rng.normal(scale=0.05, size=(len(h), 3)) for h in handles]
@@ -249,7 +254,7 @@ def test_frozen_faces_stay_at_rest(scene):
 def test_relabelling_permutes_the_result(scene):
     v, f, ex, handles = scene
     pair = [(5, len(f) - 20)]
-    kw = dict(rotation_iterations=500, gauge_steps=100)
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
     d = md.PoseSpaceDeformer(v, f, ex, handles, rotational=pair, **kw)
     rng = np.random.default_rng(11)
     vp, fp = rng.permutation(len(v)), rng.permutation(len(f))  # new -> old

@@ -55,6 +55,8 @@ struct PoseSpaceOptions {
   enum class RotationEnergy { kChordal, kGeodesic };
   RotationEnergy rotation_energy = RotationEnergy::kChordal;
   int rotation_iterations = 10;  // at most: CG iterations (chordal) or Gauss-Newton steps, >= 1
+  // Chordal CG stops at this relative energy-norm error (0 < tol < 1).
+  double rotation_tolerance = 1e-6;
   // Gauss-Newton steps that make the chordal solve's gauge; they are also the whole solve of
   // the natural shape when a solve with the handle rotations follows (>= 1).
   int gauge_steps = 2;
@@ -77,6 +79,7 @@ struct PoseSpaceStats {
   int iterations_second = 0;  // ... of step 1 with the handle rotations (0 when skipped)
   double ms_weights = 0, ms_blend = 0, ms_rotations = 0, ms_positions = 0, ms_fit = 0,
          ms_transfer = 0;
+  double ms_gauge = 0, ms_chordal = 0;  // parts of ms_rotations (final chordal solve)
 };
 
 class PoseSpaceDeformer {
