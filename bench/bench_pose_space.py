@@ -1,12 +1,14 @@
 """Pose-space deformation timing: precompute (constructor) and per-edit deform() time.
 
 Cases (issue 15): a 17k-face tube with 10 examples, with and without multiresolution (coarse
-1000 faces), and a 140k-face tube with a 1k-face coarse mesh. Edits look like Blender use: four
+1000 faces), and a 140k-face tube with a 1k-face coarse mesh; optionally the cat (14k faces,
+8 example poses, six anchor regions as handles). Edits look like Blender use: four
 anchors (both ends, two in between) follow Empties whose float32 4x4 matrices are best-fit rigid
 motions (sometimes scaled) of the anchor regions of random in-between poses, freely rotated as a
 whole. Reports medians over repeated edits; per-step medians from ``d.last_stats``.
 
-    python bench/bench_pose_space.py [--repeats 30] [--threads 1] [--cases 17k 17k-multires 140k]
+    python bench/bench_pose_space.py [--repeats 30] [--threads 1] [--refactor]
+        [--cases 17k 17k-multires 140k-multires cat cat-multires]
 """
 
 from __future__ import annotations
@@ -20,7 +22,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import platform  # noqa: E402
 import statistics  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -76,7 +80,8 @@ def best_fit(p, q):
 
 
 def edits(v, examples, handles, count, seed=1):
-    """Handle positions of `count` edits from Empty-like float32 matrices."""
+    """Handle positions of `count` edits from Empty-like float32 matrices: best-fit rigid
+    motions of the handle regions of shapes between (and a little beyond) two examples."""
     rng = np.random.default_rng(seed)
     p = len(examples)
     out = []
@@ -103,6 +108,18 @@ def tube_case(faces_target):
     x = v[:, 0] / v[:, 0].max()
     handles = [np.flatnonzero(np.abs(x - c) < 0.012) for c in (0.0, 0.33, 0.66, 1.0)]
     return v, f, handles
+
+
+CAT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses"
+
+
+def cat_case():
+    """The cat: 8 poses as examples, the ninth's anchor regions (bench_quality) as handles."""
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_quality import Bench
+
+    b = Bench(CAT)
+    return b.rest, b.faces, np.stack(b.poses[1:]), b.region_verts
 
 
 def measure(name, v, f, examples, handles, repeats, coarse):
@@ -188,10 +205,15 @@ def main():
     )
     print("|---|---:|---:|---:|---:|---:|---:|---|---|---|")
     for case in args.cases:
-        faces = 17_000 if case.startswith("17k") else 140_000
         coarse = 1000 if case.endswith("multires") else None
-        v, f, handles = tube_case(faces)
-        ex = example_poses(v, args.examples)
+        if case.startswith("cat"):
+            if not CAT.exists():
+                print(f"| {case} | skipped: {CAT} not found |")
+                continue
+            v, f, ex, handles = cat_case()
+        else:
+            v, f, handles = tube_case(17_000 if case.startswith("17k") else 140_000)
+            ex = example_poses(v, args.examples)
         r = measure(case, v, f, ex, handles, args.repeats, coarse)
         s = r["steps"]
         parts = " / ".join(

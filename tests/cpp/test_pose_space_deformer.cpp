@@ -438,7 +438,7 @@ TEST(PoseSpace, BadInputThrows) {
   std::vector<Vertices> hp = positions_of(bar.V, bar.handles);
   EXPECT_THROW(d.deform({hp[0]}, nullptr), std::invalid_argument);
   std::vector<Vertices> bad = hp;
-  bad[1] = bad[1].topRows(2);
+  bad[1] = Vertices(hp[1].topRows(2));
   EXPECT_THROW(d.deform(bad, nullptr), std::invalid_argument);
   bad = hp;
   bad[0](0, 0) = std::nan("");
