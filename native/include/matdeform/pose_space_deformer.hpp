@@ -4,21 +4,21 @@
 // and pose-space interpolation. Per example k and face i: the deformation gradient
 // T_ik = R_ik S_ik (rest -> example, fourth-vertex frames), S_ik symmetric (rest frame); per dual
 // edge (i, j) the relative rotation log w_ijk = log(R_ik^T R_jk). deform():
-//  1. pose: handle centroids in a frame (the frame face, or a best fit of all handle vertices)
-//     plus the logs of the prescribed joint rotations -> example weights by cardinal radial basis
-//     interpolation (phi(r) = r with a constant term): 1 at its own example, 0 at the others,
-//     summing to 1, continuous and bounded;
+//  1. pose: handle centroids (over the bounding-box diagonal) and best-fit handle rotations in a
+//     frame (the frame face, or a best fit of all handle vertices), plus the prescribed joint
+//     rotations -> example weights by cardinal radial basis interpolation (phi(r) = r with a
+//     constant term): 1 at its own example, 0 at the others, summing to 1, continuous, bounded;
 //  2. blend: Q_ij = exp(sum_k w_k w_ijk), S_i = sum_k w_k S_ik;
-//  3. step 1: rotations R_i minimising sum |R_j - R_i Q_ij|^2 + joint and handle penalties, each
-//     projected to the nearest rotation; step 2: positions minimising sum |grad_i x - R_i S_i|^2
-//     + handle penalties.
+//  3. step 1: rotations R_i minimising sum w_ij |R_j - R_i Q_ij|^2 + joint and handle penalties,
+//     projected to the nearest rotation; step 2: positions minimising
+//     sum |grad_i x - R_i S_i|^2 + handle penalties.
 // Step 1's matrix depends on Q (the paper refactors it per edit). Here it is solved in a gauge
-// where it is nearly constant: the rotations integrated along a spanning tree of the face graph
-// turn every tree edge's Q into the identity, so the scalar face-graph Laplacian, factored once,
-// is an almost exact preconditioner for conjugate gradients (one iteration when the blended
-// rotations are consistent, e.g. at an example). Step 2's matrix is constant and factored once.
-// With a coarse face count the solve runs on a quadric-simplified mesh and dense vertices follow
-// it through harmonic weights and per-example detail vectors. See docs/pose_space.md.
+// where it is nearly constant (rotations integrated along a spanning tree, then Gauss-Newton
+// steps of the geodesic energy), by conjugate gradients preconditioned with the scalar
+// face-graph Laplacian factored once; consistent blends (an example) converge at once. Step 2's
+// matrix is constant and factored once. With a coarse face count both steps run on a
+// quadric-simplified mesh that dense vertices follow through harmonic weights and per-example
+// detail vectors. Lengths are in the mesh's unit, angles in radians. See docs/pose_space.md.
 #pragma once
 
 #include <array>
@@ -75,13 +75,17 @@ struct PoseSpaceOptions {
 
 // What the last deform() did (for benchmarks and tests). Times in milliseconds.
 struct PoseSpaceStats {
-  int iterations_first = 0;   // conjugate-gradient iterations of step 1 (natural shape)
-  int iterations_second = 0;  // ... of step 1 with the handle rotations (0 when skipped)
+  // Iterations of the two step-1 solves: the natural shape (Gauss-Newton steps when the handle
+  // solve follows, else CG iterations) and the solve with the handle rotations (CG iterations,
+  // Gauss-Newton steps with the geodesic energy; 0 when skipped).
+  int iterations_first = 0;
+  int iterations_second = 0;
   double ms_weights = 0, ms_blend = 0, ms_rotations = 0, ms_positions = 0, ms_fit = 0,
          ms_transfer = 0;
   double ms_gauge = 0, ms_chordal = 0;  // parts of ms_rotations (final chordal solve)
 };
 
+// Not thread-safe: one deform() at a time per deformer (per-call workspace, last weights).
 class PoseSpaceDeformer {
  public:
   // rest (n,3); faces (m,3), connected, every vertex used, no degenerate face; examples: p >= 0
