@@ -14,6 +14,7 @@ void bind_threads(py::module_& m);
 void bind_learn(py::module_& m);
 void bind_pyramid_deformer(py::module_& m);
 void bind_edge_deformer(py::module_& m);
+void bind_pose_space_deformer(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "Material-aware mesh deformation core (C++)";
@@ -27,4 +28,5 @@ PYBIND11_MODULE(_core, m) {
   bind_learn(m);
   bind_pyramid_deformer(m);
   bind_edge_deformer(m);
+  bind_pose_space_deformer(m);
 }

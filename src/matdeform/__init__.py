@@ -1,6 +1,6 @@
 """matdeform: mesh deformation solvers with a numpy API: material-aware deformation (Popa,
-Julius, Sheffer 2006), edge-based iterative material deformation (cloth, membranes, shells) and
-shape-preserving pyramid coordinates.
+Julius, Sheffer 2006), edge-based iterative material deformation (cloth, membranes, shells),
+pose-space surface manipulation from example shapes and shape-preserving pyramid coordinates.
 
 numpy in, numpy out; the solvers are a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
@@ -23,6 +23,7 @@ from .mesh import (
     mesh_edges,
 )
 from .obj import read_obj, write_obj
+from .pose_space import PoseSpaceDeformer
 from .pyramid import PyramidDeformer, pyramid_coordinates
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
@@ -35,6 +36,7 @@ __all__ = [
     "EdgeDeformer",
     "MaterialDeformer",
     "PyramidDeformer",
+    "PoseSpaceDeformer",
     "bend_from_shear",
     "bend_from_vertex",
     "blend_transforms",
