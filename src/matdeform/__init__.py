@@ -5,6 +5,7 @@ pose-space surface manipulation from example shapes and shape-preserving pyramid
 numpy in, numpy out; the solvers are a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
 
+from . import shapes  # procedural test and demo meshes: md.shapes.tube(...)
 from .deformer import MaterialDeformer
 from .edge import EdgeDeformer
 from .frames import deformation_gradients
@@ -55,6 +56,7 @@ __all__ = [
     "read_obj",
     "rotation_spread",
     "set_num_threads",
+    "shapes",
     "shear_from_vertex",
     "smooth_distortions",
     "stiffness_from_distortion",
