@@ -89,8 +89,6 @@ int find_root(std::vector<int>& parent, int x) {
 
 // ---- per-iteration kernels (baseline and AVX2+FMA builds, see simd.hpp)
 
-typedef long long Vec4l __attribute__((vector_size(32), aligned(8), may_alias));
-
 // The kernel's copy of the edge terms: four edges side by side (structure of arrays), so that
 // the square roots and divisions of the estimation step run four edges at a time. Lanes without
 // a bend term have l = m = i and zero bend stiffness; padding lanes have every field zero.
@@ -113,27 +111,27 @@ struct EstimateArgs {
 // Four (x, y, z, pad) rows -> x, y, z of the four.
 MD_ALWAYS_INLINE void load_soa(const Vec4d* P, const int* idx, Vec4d* x, Vec4d* y, Vec4d* z) {
   const Vec4d a = P[idx[0]], b = P[idx[1]], c = P[idx[2]], d = P[idx[3]];
-  const Vec4d t0 = __builtin_shuffle(a, b, Vec4l{0, 4, 2, 6});  // a0 b0 a2 b2
-  const Vec4d t1 = __builtin_shuffle(a, b, Vec4l{1, 5, 3, 7});  // a1 b1 a3 b3
-  const Vec4d t2 = __builtin_shuffle(c, d, Vec4l{0, 4, 2, 6});
-  const Vec4d t3 = __builtin_shuffle(c, d, Vec4l{1, 5, 3, 7});
-  *x = __builtin_shuffle(t0, t2, Vec4l{0, 1, 4, 5});
-  *y = __builtin_shuffle(t1, t3, Vec4l{0, 1, 4, 5});
-  *z = __builtin_shuffle(t0, t2, Vec4l{2, 3, 6, 7});
+  const Vec4d t0 = MD_UNPACK_EVEN(a, b);  // a0 b0 a2 b2
+  const Vec4d t1 = MD_UNPACK_ODD(a, b);   // a1 b1 a3 b3
+  const Vec4d t2 = MD_UNPACK_EVEN(c, d);
+  const Vec4d t3 = MD_UNPACK_ODD(c, d);
+  *x = MD_LOW_HALVES(t0, t2);
+  *y = MD_LOW_HALVES(t1, t3);
+  *z = MD_HIGH_HALVES(t0, t2);
 }
 
 // Adds (x_k, y_k, z_k, 0) to row idx[k] of Y, k = 0..3 in order (rows may repeat).
 MD_ALWAYS_INLINE void add_aos(const Vec4d& x, const Vec4d& y, const Vec4d& z, const int* idx,
                               Vec4d* Y) {
   const Vec4d zero = {0, 0, 0, 0};
-  const Vec4d t0 = __builtin_shuffle(x, y, Vec4l{0, 4, 2, 6});     // x0 y0 x2 y2
-  const Vec4d t1 = __builtin_shuffle(x, y, Vec4l{1, 5, 3, 7});     // x1 y1 x3 y3
-  const Vec4d t2 = __builtin_shuffle(z, zero, Vec4l{0, 4, 2, 6});  // z0 0 z2 0
-  const Vec4d t3 = __builtin_shuffle(z, zero, Vec4l{1, 5, 3, 7});
-  Y[idx[0]] += __builtin_shuffle(t0, t2, Vec4l{0, 1, 4, 5});
-  Y[idx[1]] += __builtin_shuffle(t1, t3, Vec4l{0, 1, 4, 5});
-  Y[idx[2]] += __builtin_shuffle(t0, t2, Vec4l{2, 3, 6, 7});
-  Y[idx[3]] += __builtin_shuffle(t1, t3, Vec4l{2, 3, 6, 7});
+  const Vec4d t0 = MD_UNPACK_EVEN(x, y);     // x0 y0 x2 y2
+  const Vec4d t1 = MD_UNPACK_ODD(x, y);      // x1 y1 x3 y3
+  const Vec4d t2 = MD_UNPACK_EVEN(z, zero);  // z0 0 z2 0
+  const Vec4d t3 = MD_UNPACK_ODD(z, zero);
+  Y[idx[0]] += MD_LOW_HALVES(t0, t2);
+  Y[idx[1]] += MD_LOW_HALVES(t1, t3);
+  Y[idx[2]] += MD_HIGH_HALVES(t0, t2);
+  Y[idx[3]] += MD_HIGH_HALVES(t1, t3);
 }
 
 MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
@@ -166,13 +164,13 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d
     const Vec4d dx = xi - xj, dy = yi - yj, dz = zi - zj;
     const Vec4d len2 = dx * dx + dy * dy + dz * dz;
     const Vec4d rl = MD_LD4(t.rest_len);
-    const Vec4l has_dir = (len2 > 0.0) & (len2 > 1e-24 * rl * rl);
+    const Vec4m has_dir = (len2 > 0.0) & (len2 > 1e-24 * rl * rl);
     Vec4d len;
-    sqrt4(has_dir ? len2 : one, &len);
+    sqrt4(MD_SELECT4(has_dir, len2, one), &len);
     const Vec4d inv = one / len;
-    const Vec4d lx = has_dir ? dx * inv : MD_LD4(t.r0[0]);
-    const Vec4d ly = has_dir ? dy * inv : MD_LD4(t.r0[1]);
-    const Vec4d lz = has_dir ? dz * inv : MD_LD4(t.r0[2]);
+    const Vec4d lx = MD_SELECT4(has_dir, dx * inv, MD_LD4(t.r0[0]));
+    const Vec4d ly = MD_SELECT4(has_dir, dy * inv, MD_LD4(t.r0[1]));
+    const Vec4d lz = MD_SELECT4(has_dir, dz * inv, MD_LD4(t.r0[2]));
     const Vec4d cr = MD_LD4(t.c_rho);
     const Vec4d k1 = cr * (1.0 - a.p_rho), k2 = cr * rl * a.p_rho;
     const Vec4d tx = k1 * dx + k2 * lx, ty = k1 * dy + k2 * ly, tz = k1 * dz + k2 * lz;
@@ -184,17 +182,17 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d
     const Vec4d wx = xl - xm, wy = yl - ym, wz = zl - zm;
     const Vec4d cx = dz * wy - dy * wz, cy = dx * wz - dz * wx, cz = dy * wx - dx * wy;
     const Vec4d c2 = cx * cx + cy * cy + cz * cz;
-    const Vec4l good = has_dir & (c2 > 1e-24 * len2 * (wx * wx + wy * wy + wz * wz));
+    const Vec4m good = has_dir & (c2 > 1e-24 * len2 * (wx * wx + wy * wy + wz * wz));
     Vec4d cn;
-    sqrt4(good ? c2 : one, &cn);
+    sqrt4(MD_SELECT4(good, c2, one), &cn);
     const Vec4d ic = one / cn;
     const Vec4d nx = cx * ic, ny = cy * ic, nz = cz * ic;
     const Vec4d bx = ly * nz - lz * ny, by = lz * nx - lx * nz, bz = lx * ny - ly * nx;
     const Vec4d cs = MD_LD4(t.c_sig), sl = MD_LD4(t.s_l), sn = MD_LD4(t.s_n), sb = MD_LD4(t.s_b);
     const Vec4d k3 = cs * (1.0 - a.p_sig);
-    const Vec4d rx = good ? sl * lx + sn * nx + sb * bx : cs * sx;
-    const Vec4d ry = good ? sl * ly + sn * ny + sb * by : cs * sy;
-    const Vec4d rz = good ? sl * lz + sn * nz + sb * bz : cs * sz;
+    const Vec4d rx = MD_SELECT4(good, sl * lx + sn * nx + sb * bx, cs * sx);
+    const Vec4d ry = MD_SELECT4(good, sl * ly + sn * ny + sb * by, cs * sy);
+    const Vec4d rz = MD_SELECT4(good, sl * lz + sn * nz + sb * bz, cs * sz);
     const Vec4d ux = k3 * sx + a.p_sig * rx, uy = k3 * sy + a.p_sig * ry,
                 uz = k3 * sz + a.p_sig * rz;
     // D_rho^T t = (t, -t) on (i, j); D_sig^T u = (alpha, 1 - alpha, -beta, beta - 1) u.
