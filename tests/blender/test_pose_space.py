@@ -122,10 +122,10 @@ def pose_top(top, angle=0.9, dx=0.8, dz=-0.5):
 def test_method_is_registered_with_its_saved_number():
     m = ps.PoseSpaceMethod
     assert (m.key, m.number) == ("POSE_SPACE", 2)
-    items = {
-        i.identifier: i.value
-        for i in bpy.types.MaterialDeformSettings.bl_rna.properties["method"].enum_items
-    }
+    from material_deform import properties
+
+    rna = properties.MaterialDeformSettings.bl_rna.properties["method"]
+    items = {i.identifier: i.value for i in rna.enum_items}
     assert items["POSE_SPACE"] == 2 and items["MATERIAL"] == 0
 
 
@@ -231,7 +231,7 @@ def test_edit_mode_change_and_added_or_muted_keys_make_the_bind_stale():
 
     obj.data.shape_keys.key_blocks["Bulge"].mute = True
     pose_top(top)
-    assert "Example shape keys changed since bind" in session.stale_reason(obj)
+    assert "example shape keys" in session.stale_reason(obj).lower()
     bind(obj)  # rebind with one key fewer
     assert [n for n, _w in ps.weights_readout(obj)] == ["(rest)", "Bend"]
 
@@ -262,12 +262,13 @@ def test_bad_anchor_setups_are_errors_that_change_nothing():
     bottom.mode = "POSITION"  # a Rotation anchor needs a frame
     expect_error(bpy.ops.object.material_deform_bind, "Frame anchor")
     bottom.mode = "FRAME"
-    obj.material_deform.pose_space.multiresolution = True
-    obj.material_deform.pose_space.coarse_faces = 100000
-    expect_error(bpy.ops.object.material_deform_bind, "must be below the mesh's")
-    obj.material_deform.pose_space.multiresolution = False
     obj.material_deform.pose_space.frozen_group = "Nope"
     expect_error(bpy.ops.object.material_deform_bind, "Frozen: no vertex group")
+    obj.material_deform.pose_space.frozen_group = ""
+    top.mode = "POSITION"
+    obj.material_deform.anchors.remove(1)  # one Follow Empty anchor alone
+    before = snapshot(obj)
+    expect_error(bpy.ops.object.material_deform_bind, "alone cannot tell which pose")
     assert snapshot(obj) == before and not obj.material_deform.bound
 
 
@@ -305,8 +306,6 @@ def test_frozen_group_keeps_its_faces_at_rest_and_matches_the_library():
     assert np.abs(got - want).max() <= 1e-9 * diag(v) + 4e-7 * np.abs(want).max()
 
     # a handle on frozen faces is refused, and nothing changes
-    s.pose_space.frozen_group = ""
-    bind(obj)
     vg.add([int(i) for i in anchor_vertices(obj, top)], 1.0, "REPLACE")
     s.pose_space.frozen_group = "Frozen"
     before = output(obj).copy()
@@ -317,7 +316,7 @@ def test_frozen_group_keeps_its_faces_at_rest_and_matches_the_library():
 def test_rotation_anchor_turns_the_joint_like_the_library():
     obj, top, bottom = example_bar()
     mid = add_anchor(
-        obj, lambda p: abs(p.center.z - 1.0) < 0.05 and p.center.x > 0.45, mode="ROTATION"
+        obj, lambda p: abs(p.center.z - 1.1) < 0.05 and p.center.x > 0.45, mode="ROTATION"
     )
     bind(obj)
     pose_top(top, angle=0.6, dx=0.5, dz=-0.2)
@@ -385,6 +384,8 @@ def test_undo_bind_and_a_pose_space_setting():
     pose_top(top)
     assert bpy.ops.ed.undo_push(message="moved") == {"FINISHED"}
     posed = output(obj).copy()
+    obj.material_deform.pose_space.coarse_faces = 100  # not used: still valid
+    assert session.stale_reason(obj) == ""
     obj.material_deform.pose_space.multiresolution = True  # stale: settings changed
     assert bpy.ops.ed.undo_push(message="setting") == {"FINISHED"}
     assert "pose-space settings" in session.stale_reason(obj)

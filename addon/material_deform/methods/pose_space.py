@@ -207,6 +207,11 @@ class PoseSpaceMethod(Method):
         if len(joints) == len(inputs.modes):
             raise BindError("Every anchor is Rotation: at least one must hold its faces")
         frozen = _frozen_faces(obj, a)
+        if len(inputs.modes) - len(joints) == 1 and not frames and not joints and frozen is None:
+            raise BindError(
+                f"Anchor '{inputs.names[0]}' alone cannot tell which pose is meant: add anchors, "
+                "make one of them Frame, or freeze faces"
+            )
         if frozen is not None:
             fv = np.zeros(len(a.rest), bool)
             fv[a.tris[frozen].ravel()] = True
@@ -219,12 +224,8 @@ class PoseSpaceMethod(Method):
                         "place: take them out of the frozen group"
                     )
         m = len(a.tris)
-        coarse = int(s.coarse_faces) if s.multiresolution else None
-        if coarse is not None and coarse >= m:
-            raise BindError(
-                f"Coarse Faces ({coarse}) must be below the mesh's {m} triangles "
-                "(or turn Multiresolution off)"
-            )
+        # a coarse mesh as large as the mesh is the mesh: single resolution (the panel says so)
+        coarse = int(s.coarse_faces) if s.multiresolution and s.coarse_faces < m else None
         inputs.extra["examples"] = _read_examples(obj, names)
         inputs.extra["example_names"] = names
         inputs.extra["frozen"] = frozen
@@ -348,8 +349,18 @@ class PoseSpaceMethod(Method):
         layout.prop(ps, "multiresolution")
         if ps.multiresolution:
             layout.prop(ps, "coarse_faces")
+            m = _triangle_count(obj.data)
+            if ps.coarse_faces >= m:
+                layout.label(text=f"Mesh has {m} triangles:", icon="INFO")
+                layout.label(text="single resolution")
         layout.label(text="Frozen (vertex group):")
         layout.prop_search(ps, "frozen_group", obj, "vertex_groups", text="", icon="FREEZE")
+
+
+def _triangle_count(mesh) -> int:
+    n = np.empty(len(mesh.polygons), np.int32)
+    mesh.polygons.foreach_get("loop_total", n)
+    return int(n.sum()) - 2 * len(n)
 
 
 def weights_readout(obj) -> list[tuple[str, float]] | None:
