@@ -258,7 +258,7 @@ def ps_tentacle(name, location):
     v = np.array([p.co[:] for p in obj.data.vertices])
     obj.shape_key_add(name="Basis", from_mix=False)
     for key, coords in (
-        ("Curl + muscle", ps_bend(v, 0.5 * math.pi, 0.0, bulge=0.8)),
+        ("Curl + muscle", ps_bend(v, 0.5 * math.pi, 0.0, bulge=1.6)),
         ("Bend sideways", ps_bend(v, 0.5 * math.pi, 0.5 * math.pi)),
     ):
         kb = obj.shape_key_add(name=key, from_mix=False)
@@ -276,8 +276,8 @@ def ps_girth_colours(obj, x, v):
         idx = np.flatnonzero(ring == r)
         c = x[idx].mean(0)
         g[idx] = np.linalg.norm(x[idx] - c, axis=1) / np.linalg.norm(v[idx, :2], axis=1)
-    k = np.clip((g - 0.95) / 0.4, 0, 1)
-    rgba = np.stack([0.25 + 0.75 * k, 0.45 + 0.1 * k, 0.85 - 0.7 * k, np.ones_like(k)], axis=1)
+    k = np.clip((g - 1.0) / 0.2, 0, 1)[:, None]
+    rgba = np.hstack([(1 - k) * [0.3, 0.45, 0.8] + k * [1.0, 0.4, 0.05], np.ones_like(k)])
     me = obj.data
     attr = me.color_attributes.new("Girth", "FLOAT_COLOR", "POINT")
     attr.data.foreach_set("color", rgba.astype(np.float32).ravel())
@@ -311,12 +311,12 @@ def build_pose_space():
         ("beyond: curled further", (0.85 * math.pi, 0.0), None),
     ]
     for i, (text, pose, key) in enumerate(shots):
-        x0 = -7.0 + 3.5 * i
+        x0 = -8.0 + 4.0 * i
         obj, v = ps_tentacle(f"Tentacle {i + 1}", (x0, 0, 0))
         if key is not None:  # an example as the user made it: the shape key shown
             obj.data.shape_keys.key_blocks[key].value = 1.0
             x = bridge.shape_key_positions(obj, key)
-            label(text, (x0 + 0.8, -1.0, 5.9))
+            label(text, (x0 + 0.8, 0.0, 5.6))
         else:
             add_anchor(obj, lambda p: p.center.z < 1e-4)
             tip = add_anchor(obj, lambda p: p.center.z > PS_LENGTH - 1e-4)
@@ -330,8 +330,8 @@ def build_pose_space():
             w = pose_space.weights_readout(obj)
             shown = " ".join(f"{wi:.2f}" for _n, wi in w)
             print(f"pose space demo, {text}: weights (rest, curl, side) = {shown}")
-            label(text, (x0 + 0.8, -1.0, 5.9))
-            label(f"w = {shown}", (x0 + 0.8, -1.0, 5.35))
+            label(text, (x0 + 0.8, 0.0, 5.6))
+            label(f"w = {shown}", (x0 + 0.8, 0.0, 5.1))
         ps_girth_colours(obj, x, v)
     for ob in scene.objects:
         if ob.type == "EMPTY":
@@ -340,15 +340,20 @@ def build_pose_space():
 
 
 def camera_and_light_pose_space(scene):
+    """A three-quarter view from the front left, so the sideways bend shows; labels face it."""
     camera_and_light(scene)
     cam = scene.camera
-    cam.data.ortho_scale = 19.0
-    cam.location = (0.8, -20, 2.9)
-    cam.rotation_euler = (math.radians(88), 0, 0)
-    scene.render.resolution_x, scene.render.resolution_y = 1800, 720
+    cam.data.ortho_scale = 22.0
+    target = Vector((1.6, 0.0, 2.2))
+    direction = Vector((0.25, 0.9, -0.2)).normalized()  # the camera looks this way
+    cam.location = target - 30.0 * direction
+    cam.rotation_euler = direction.to_track_quat("-Z", "Y").to_euler()
+    scene.render.resolution_x, scene.render.resolution_y = 1800, 760
+    scene.world.color = (0.18, 0.18, 0.2)  # the white labels read on a dark ground
     for ob in scene.objects:
         if ob.type == "FONT":
-            ob.data.size = 0.34
+            ob.data.size = 0.36
+            ob.rotation_euler = cam.rotation_euler
 
 
 def main():

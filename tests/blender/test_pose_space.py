@@ -186,10 +186,10 @@ def test_anchors_posed_at_an_example_reproduce_that_shape_key(key):
     view_update()
     got = output(obj).astype(np.float64)
     err = np.abs(got - target).max() / diag(v)
-    assert err <= 1e-5, err  # float32 keys and Empty matrices: ~1e-7 of the size each
+    assert err <= 1e-6, err  # the bound; float32 keys and Empty matrices: ~1e-8 here
     names = [n for n, _w in ps.weights_readout(obj)]
     w = np.array([x for _n, x in ps.weights_readout(obj)])
-    np.testing.assert_allclose(w, np.eye(3)[names.index(key)], atol=1e-4)
+    np.testing.assert_allclose(w, np.eye(3)[names.index(key)], atol=1e-6)
     if key == "Bulge":  # the bulge came along: the middle section is wider than at rest
         mid = np.abs(v[:, 2]) < 0.1
         assert np.ptp(got[mid, 1]) > 1.3 * np.ptp(v[mid, 1])

@@ -190,7 +190,8 @@ class PoseSpaceMethod(Method):
         s = settings(obj).pose_space
         a = inputs.arrays
         names = example_names(obj)
-        if not names:
+        if not names and binding:
+            # (a check of an existing bind just compares: no examples is a changed example set)
             raise _no_examples(obj)
         frames = [i for i, m in enumerate(inputs.modes) if m == FRAME]
         if len(frames) > 1:
@@ -226,7 +227,9 @@ class PoseSpaceMethod(Method):
         m = len(a.tris)
         # a coarse mesh as large as the mesh is the mesh: single resolution (the panel says so)
         coarse = int(s.coarse_faces) if s.multiresolution and s.coarse_faces < m else None
-        inputs.extra["examples"] = _read_examples(obj, names)
+        inputs.extra["examples"] = (
+            _read_examples(obj, names) if names else np.zeros((0, len(a.rest), 3), np.float32)
+        )
         inputs.extra["example_names"] = names
         inputs.extra["frozen"] = frozen
         inputs.extra["coarse"] = coarse
@@ -245,6 +248,8 @@ class PoseSpaceMethod(Method):
     def build(self, inputs) -> Solver:
         md = load_core()
         x = inputs.extra
+        if not x["example_names"]:  # (gather refuses this at Bind; a later check compares)
+            raise BindError("Pose space needs example shapes: add shape keys, then Rebind")
         tris = inputs.arrays.tris
         used = inputs.used
         examples = x["examples"].astype(np.float64)
