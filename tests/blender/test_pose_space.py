@@ -305,12 +305,54 @@ def test_frozen_group_keeps_its_faces_at_rest_and_matches_the_library():
     want, _w = reference(obj, [top], frozen=frozen)
     assert np.abs(got - want).max() <= 1e-9 * diag(v) + 4e-7 * np.abs(want).max()
 
+    # the same faces as a boolean face attribute (what Blender 4 made of face maps)
+    lp = np.repeat(np.arange(len(obj.data.polygons)), [len(p.vertices) for p in obj.data.polygons])
+    in_poly = np.ones(len(obj.data.polygons), bool)
+    loops = np.array([lo.vertex_index for lo in obj.data.loops])
+    np.logical_and.at(in_poly, lp, inside[loops])
+    fa = obj.data.attributes.new("Frozen faces", "BOOLEAN", "FACE")
+    fa.data.foreach_set("value", in_poly)
+    s.pose_space.frozen_group = "Frozen faces"
+    assert "pose-space settings" not in session.stale_reason(obj)  # the very same faces
+    bind(obj)  # Rebind keeps the bind pose: the same pose, solved again with these faces
+    np.testing.assert_array_equal(output(obj), got.astype(np.float32))
+    s.pose_space.frozen_group = "Frozen"
+
     # a handle on frozen faces is refused, and nothing changes
     vg.add([int(i) for i in anchor_vertices(obj, top)], 1.0, "REPLACE")
     s.pose_space.frozen_group = "Frozen"
     before = output(obj).copy()
     expect_error(bpy.ops.object.material_deform_bind, "vertices on frozen faces")
     np.testing.assert_array_equal(output(obj), before)
+
+
+def test_bake_writes_the_live_pose_space_results():
+    obj, top, _bottom = example_bar()
+    bind(obj)
+    e = top.empty
+    e.keyframe_insert("location", frame=1)
+    e.keyframe_insert("rotation_euler", frame=1)
+    e.location.x += 1.2
+    e.rotation_euler.y = -0.9
+    e.keyframe_insert("location", frame=3)
+    e.keyframe_insert("rotation_euler", frame=3)
+    scene = bpy.context.scene
+    live, weights = {}, {}
+    for f in (1, 2, 3):
+        scene.frame_set(f)
+        live[f] = output(obj).copy()
+        weights[f] = [w for _n, w in ps.weights_readout(obj)]
+    assert np.abs(live[3] - live[1]).max() > 0.5
+    assert weights[1] == pytest.approx([1, 0, 0], abs=1e-9) and weights[3][0] < 0.9
+    scene.frame_set(1)
+    obj.material_deform.bake_output = "SHAPE_KEYS"
+    obj.material_deform.bake_start, obj.material_deform.bake_end = 1, 3
+    assert bpy.ops.object.material_deform_bake() == {"FINISHED"}
+    for f in (1, 2, 3):
+        baked = obj.data.shape_keys.key_blocks[f"MD Bake {f:04d}"]
+        np.testing.assert_array_equal(np.array([k.co[:] for k in baked.data], np.float32), live[f])
+    # the bake keys are no examples (the same rule as Learn from Shape Keys)
+    assert ps.example_names(obj) == ["Bend", "Bulge"]
 
 
 def test_rotation_anchor_turns_the_joint_like_the_library():
