@@ -327,7 +327,7 @@ class PoseSpaceMethod(Method):
         buf = entry.extra.setdefault("examples_buf", np.empty_like(bound[0]))
         keys = obj.data.shape_keys
         for name, ex in zip(solver.names, bound, strict=True):
-            keys.key_blocks[name].data.foreach_get("co", buf.reshape(-1))
+            bridge.read_key_into(keys.key_blocks[name], buf.reshape(-1))
             if not np.array_equal(buf, ex):
                 raise BindError(f"Example shape key '{name}' changed since bind - click Rebind")
 
