@@ -205,10 +205,8 @@ class PoseSpaceMethod(Method):
                 f"Anchor '{inputs.names[joints[0]]}' is Rotation: its Empty turns the joint "
                 "relative to a Frame anchor - set one anchor (e.g. on the trunk) to Frame"
             )
-        if len(joints) == len(inputs.modes):
-            raise BindError("Every anchor is Rotation: at least one must hold its faces")
         frozen = _frozen_faces(obj, a)
-        if len(inputs.modes) - len(joints) == 1 and not frames and not joints and frozen is None:
+        if len(inputs.modes) == 1 and not frames and not joints and frozen is None:
             raise BindError(
                 f"Anchor '{inputs.names[0]}' alone cannot tell which pose is meant: add anchors, "
                 "make one of them Frame, or freeze faces"
