@@ -1,6 +1,11 @@
-"""Demo scene, built by script: a tapered tentacle whose stiffness follows its girth (paper
-Fig. 1/10) and a bar with a stiff middle (Fig. 4), each deformed twice by the same Empty moves:
-uniform material (left) vs material-aware (right). Saves out/demo.blend and renders PNGs.
+"""Demo scenes, built by script:
+
+- a tapered tentacle whose stiffness follows its girth (paper Fig. 1/10) and a bar with a stiff
+  middle (Fig. 4), each deformed twice by the same Empty moves: uniform material (left) vs
+  material-aware (right): out/demo.blend, out/demo.png;
+- Pose space: a tentacle with two example shape keys (curled up with a bulging muscle, bent
+  sideways), posed through the add-on by dragging its tip Empty between and beyond them:
+  out/demo_pose_space.blend, out/demo_pose_space_addon.png.
 
     blender -b --factory-startup --python scripts/demo_blender.py      (or scripts/demo_blender.sh)
 
@@ -20,6 +25,7 @@ for p in reversed(os.environ.get("MD_SYS_PATH", "").split(os.pathsep)):
 sys.path.insert(0, str(ROOT / "addon"))
 
 import bpy  # noqa: E402
+import numpy as np  # noqa: E402
 from mathutils import Matrix, Vector  # noqa: E402
 
 OUT = ROOT / "out"
@@ -222,6 +228,134 @@ def render(scene, path):
     return "cycles"
 
 
+# --- pose space -------------------------------------------------------------------------------
+
+PS_LENGTH, PS_RINGS, PS_SIDES = 5.0, 48, 16
+
+
+def ps_bend(v, angle, azimuth, bulge=0.0):
+    """The tentacle (along +z from 0) bent by ``angle`` towards the horizontal direction at
+    ``azimuth`` (0 = +x), each z = const section moved rigidly; ``bulge`` swells a muscle on the
+    inner side around a third of the length."""
+    v = np.asarray(v, np.float64)
+    c, s_ = math.cos(azimuth), math.sin(azimuth)
+    u = v[:, 0] * c + v[:, 1] * s_  # along the bend direction
+    w = -v[:, 0] * s_ + v[:, 1] * c
+    t = v[:, 2] / PS_LENGTH
+    if bulge:
+        muscle = bulge * np.exp(-(((t - 0.35) / 0.12) ** 2)) * np.clip(u, 0, None)
+        u = u * (1 + muscle)
+        w = w * (1 + 0.5 * muscle)
+    rho = PS_LENGTH / angle
+    a = v[:, 2] / rho
+    u2 = rho - (rho - u) * np.cos(a)
+    z2 = (rho - u) * np.sin(a)
+    return np.stack([u2 * c - w * s_, u2 * s_ + w * c, z2], axis=1)
+
+
+def ps_tentacle(name, location):
+    obj = tube(name, lambda t: 0.45 - 0.3 * t, PS_LENGTH, PS_RINGS, PS_SIDES, location)
+    v = np.array([p.co[:] for p in obj.data.vertices])
+    obj.shape_key_add(name="Basis", from_mix=False)
+    for key, coords in (
+        ("Curl + muscle", ps_bend(v, 0.5 * math.pi, 0.0, bulge=1.6)),
+        ("Bend sideways", ps_bend(v, 0.5 * math.pi, 0.5 * math.pi)),
+    ):
+        kb = obj.shape_key_add(name=key, from_mix=False)
+        kb.data.foreach_set("co", coords.astype(np.float32).ravel())
+        kb.value = 0.0
+    return obj, v
+
+
+def ps_girth_colours(obj, x, v):
+    """Colour = girth over rest girth (a bulge shows bright), per vertex, as a colour
+    attribute Workbench shows."""
+    ring = np.arange(len(v)) // PS_SIDES
+    g = np.ones(len(v))
+    for r in range(PS_RINGS):
+        idx = np.flatnonzero(ring == r)
+        c = x[idx].mean(0)
+        g[idx] = np.linalg.norm(x[idx] - c, axis=1) / np.linalg.norm(v[idx, :2], axis=1)
+    k = np.clip((g - 1.0) / 0.2, 0, 1)[:, None]
+    rgba = np.hstack([(1 - k) * [0.3, 0.45, 0.8] + k * [1.0, 0.4, 0.05], np.ones_like(k)])
+    me = obj.data
+    attr = me.color_attributes.new("Girth", "FLOAT_COLOR", "POINT")
+    attr.data.foreach_set("color", rgba.astype(np.float32).ravel())
+    me.color_attributes.active_color = attr
+
+
+def ps_pose_tip(obj, tip, v, target):
+    """Move the tip Empty so the tip faces sit where ``target`` puts them (a rigid fit)."""
+    from material_deform import anchor_math as am
+    from material_deform import bridge
+
+    idx = np.flatnonzero(v[:, 2] > PS_LENGTH - 1e-4)
+    k = am.rigid_fit(v[idx], target[idx])
+    m_obj = np.array(obj.matrix_world)
+    e_bind = np.array(tuple(tip.bind_matrix)).reshape(4, 4)
+    bridge.set_world_matrix(tip.empty, m_obj @ k @ np.linalg.inv(m_obj) @ e_bind)
+    bpy.context.view_layer.update()
+
+
+def build_pose_space():
+    from material_deform import bridge
+    from material_deform.methods import pose_space
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    shots = [
+        ("example: curl + muscle", None, "Curl + muscle"),
+        ("example: bend sideways", None, "Bend sideways"),
+        ("between: half curl", (0.25 * math.pi, 0.0), None),
+        ("between: curl + side", (0.5 * math.pi, 0.25 * math.pi), None),
+        ("beyond: curled further", (0.85 * math.pi, 0.0), None),
+    ]
+    for i, (text, pose, key) in enumerate(shots):
+        x0 = -8.0 + 4.0 * i
+        obj, v = ps_tentacle(f"Tentacle {i + 1}", (x0, 0, 0))
+        if key is not None:  # an example as the user made it: the shape key shown
+            obj.data.shape_keys.key_blocks[key].value = 1.0
+            x = bridge.shape_key_positions(obj, key)
+            label(text, (x0 + 0.8, 0.0, 5.6))
+        else:
+            add_anchor(obj, lambda p: p.center.z < 1e-4)
+            tip = add_anchor(obj, lambda p: p.center.z > PS_LENGTH - 1e-4)
+            s = obj.material_deform
+            s.anchors[0].mode = "FRAME"  # the base: the pose is measured in its frame
+            s.method = "POSE_SPACE"
+            activate(obj)
+            assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+            ps_pose_tip(obj, tip, v, ps_bend(v, pose[0], pose[1]))
+            x = bridge.shape_key_positions(obj, s.output_key_name)
+            w = pose_space.weights_readout(obj)
+            shown = " ".join(f"{wi:.2f}" for _n, wi in w)
+            print(f"pose space demo, {text}: weights (rest, curl, side) = {shown}")
+            label(text, (x0 + 0.8, 0.0, 5.6))
+            label(f"w = {shown}", (x0 + 0.8, 0.0, 5.1))
+        ps_girth_colours(obj, x, v)
+    for ob in scene.objects:
+        if ob.type == "EMPTY":
+            ob.empty_display_size = 0.25
+    return scene
+
+
+def camera_and_light_pose_space(scene):
+    """A three-quarter view from the front left, so the sideways bend shows; labels face it."""
+    camera_and_light(scene)
+    cam = scene.camera
+    cam.data.ortho_scale = 22.0
+    target = Vector((1.6, 0.0, 2.2))
+    direction = Vector((0.25, 0.9, -0.2)).normalized()  # the camera looks this way
+    cam.location = target - 30.0 * direction
+    cam.rotation_euler = direction.to_track_quat("-Z", "Y").to_euler()
+    scene.render.resolution_x, scene.render.resolution_y = 1800, 760
+    scene.world.color = (0.18, 0.18, 0.2)  # the white labels read on a dark ground
+    for ob in scene.objects:
+        if ob.type == "FONT":
+            ob.data.size = 0.36
+            ob.rotation_euler = cam.rotation_euler
+
+
 def main():
     OUT.mkdir(exist_ok=True)
     enable_addon()
@@ -231,6 +365,14 @@ def main():
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     engine = render(scene, OUT / "demo.png")
     print(f"DEMO OK: {blend} and {OUT / 'demo.png'} ({engine})")
+
+    scene = build_pose_space()
+    camera_and_light_pose_space(scene)
+    blend = OUT / "demo_pose_space.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    png = OUT / "demo_pose_space_addon.png"
+    engine = render(scene, png)
+    print(f"DEMO OK: {blend} and {png} ({engine})")
 
 
 main()

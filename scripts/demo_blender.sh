@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Build the demo scene in background Blender: out/demo.blend and out/demo.png.
+# Build the demo scenes in background Blender: out/demo.blend + out/demo.png (material-aware),
+# out/demo_pose_space.blend + out/demo_pose_space_addon.png (Pose space through the add-on).
 # Installs Debian's blender + numpy if missing and builds the add-on (core included) if needed.
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"

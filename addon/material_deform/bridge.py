@@ -580,6 +580,16 @@ def _raw_copy_into_key(kb, flat) -> bool:
     return bool(addr)
 
 
+def read_key_into(kb, flat) -> None:
+    """A key block's coordinates into ``flat`` ((3n,) float32) by the fastest route there is
+    (the bulk ``points`` of Blender >= 4.1, raw memory before, else ``data``): live checks."""
+    points = getattr(kb, "points", None)
+    if points is not None:
+        points.foreach_get("co", flat)
+    elif not _raw_copy_from_key(kb, flat):
+        kb.data.foreach_get("co", flat)
+
+
 def _raw_copy_from_key(kb, flat) -> bool:
     if flat.size == 0:
         return len(kb.data) == 0

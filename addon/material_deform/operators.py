@@ -230,6 +230,7 @@ class MESH_OT_material_deform_add_anchor(_Operator, bpy.types.Operator):
         items=(
             ("POSITION", "Follow Empty", "The faces follow the Empty's full transform"),
             ("ROTATION", "Rotation + Scale", "Only the Empty's rotation and scale are used"),
+            ("FRAME", "Frame", "Pose space: the frame in which the pose is measured"),
         ),
         default="POSITION",
     )

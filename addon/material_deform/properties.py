@@ -66,6 +66,14 @@ class MaterialDeformAnchor(bpy.types.PropertyGroup):
                 "CON_ROTLIKE",
                 1,
             ),
+            (
+                "FRAME",
+                "Frame",
+                "Pose space: the faces follow the Empty and give the frame in which the pose is "
+                "measured (turning the whole rig keeps the pose); one anchor, on the trunk",
+                "ORIENTATION_LOCAL",
+                2,
+            ),
         ),
         default="POSITION",
         update=_settings_changed,
@@ -195,8 +203,9 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
     bind_axes: FloatVectorProperty(size=9, default=(1, 0, 0, 0, 1, 0, 0, 0, 1), options={"HIDDEN"})
     learn_filter: StringProperty(
         name="Keys",
-        description="Learn from Shape Keys uses the unmuted shape keys whose name contains this "
-        "text (empty = all)",
+        description="Learn from Shape Keys and the Pose space examples use the unmuted shape "
+        "keys whose name contains this text (empty = all)",
+        update=_settings_changed,
     )
     learn_region: IntProperty(
         name="Neighbourhood",

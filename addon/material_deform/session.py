@@ -30,6 +30,12 @@ def stale_reason(obj) -> str:
     return _stale.get(obj.as_pointer(), "")
 
 
+def cached_entry(obj) -> Entry | None:
+    """The built solver of a bound object, None if there is none now (read-only use: a
+    method's panel readout)."""
+    return _cache.get(obj.as_pointer())
+
+
 def clear_cache() -> None:
     _cache.clear()
     _stale.clear()
