@@ -10,11 +10,14 @@ pinned to their pose positions. The reference mesh is deformed and compared with
     error = RMS over all vertices of |x - x_pose| / bounding-box diagonal of the reference
 
 Rows: uniform stiffness, learned isotropic, learned anisotropic (when MaterialDeformer accepts
-(E,3) bend), pyramid coordinates (md.PyramidDeformer: the anchor vertices as controls at their
-pose positions, no stiffness, no rotations), Blender's Laplacian Deform with the same pinned
-vertices.
+(E,3) bend), the edge-based method (md.EdgeDeformer: the anchor vertices pinned at their pose
+positions, no rotations given), pyramid coordinates (md.PyramidDeformer: the anchor vertices as
+controls at their pose positions, no stiffness, no rotations), Blender's Laplacian Deform with
+the same pinned vertices, and pose-space manipulation (PoseSpaceDeformer: the other 8 poses are
+the examples, the six anchor regions the translational handles, every anchor vertex at its pose
+position), with and without multiresolution.
 
-    python bench/bench_quality.py [--data DIR] [--no-blender] [--explore]
+    python bench/bench_quality.py [--data DIR] [--no-blender] [--explore] [--pose-space-only]
 """
 
 from __future__ import annotations
@@ -142,6 +145,15 @@ class Bench:
         d = md.PyramidDeformer(self.rest, self.faces, self.pinned)
         return [rms_error(d.deform(p[self.pinned], tol=tol), p, self.diag) for p in self.poses]
 
+    def pose_space(self, **kw) -> list[float]:
+        """Held-out error of PoseSpaceDeformer per pose: examples = the other 8 poses."""
+        errs = []
+        for h in range(len(self.poses)):
+            d = md.PoseSpaceDeformer(self.rest, self.faces, self.train(h), self.region_verts, **kw)
+            x = d.deform([self.poses[h][r] for r in self.region_verts])
+            errs.append(rms_error(x, self.poses[h], self.diag))
+        return errs
+
     def laplacian(self, iterations: int = 1) -> tuple[list[float], float] | None:
         """Blender's Laplacian Deform for all poses; None if blender is not installed."""
         blender = shutil.which("blender")
@@ -256,6 +268,7 @@ def main() -> None:
     ap.add_argument("--no-blender", action="store_true")
     ap.add_argument("--explore", action="store_true", help="also run the learning variants")
     ap.add_argument("--plot", type=Path, help="write a PNG of the anchor regions (matplotlib)")
+    ap.add_argument("--pose-space-only", action="store_true", help="only the pose-space rows")
     args = ap.parse_args()
 
     b = BENCH = Bench(args.data)
@@ -272,6 +285,12 @@ def main() -> None:
     header = "| method | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |"
     print(header)
     print("|" + "---|" * 11)
+    print(fmt_row("pose space, 8 examples", b.pose_space()), flush=True)
+    print(fmt_row("pose space, 8 examples, coarse 1000 faces", b.pose_space(coarse=1000)))
+    if args.pose_space_only:
+        if args.explore:
+            explore_pose_space(b)
+        return
     print(fmt_row("uniform stiffness", b.run(uniform)))
     print(fmt_row("learned isotropic (paper)", b.run(learned())))
     print(fmt_row("learned isotropic (smoothing 30, eps 0.001)", b.run(learned(**TUNED))))
@@ -284,6 +303,8 @@ def main() -> None:
                 print(fmt_row(name, b.run(learned(True, frame=frame, **kw))))
     else:
         print("| learned anisotropic | pending: MaterialDeformer does not accept (E,3) bend yet |")
+    for row in edge_rows(b):
+        print(row)
     if hasattr(md, "PyramidDeformer"):
         print(fmt_row("pyramid coordinates (no stiffness; tol 1e-7, <= 3000 sweeps)", b.pyramid()))
     if not args.no_blender:
@@ -295,6 +316,81 @@ def main() -> None:
             print(fmt_row("Blender Laplacian Deform", errs, f"(max anchor slip {slip:.4f})"))
     if args.explore:
         explore(b)
+        explore_edge(b)
+        explore_pose_space(b)
+
+
+def edge_errors(
+    b: Bench, stretch: float, bend: float, iterations: int, tol: float = 1e-5, relaxation=1.0
+):
+    """Edge-based method (issue 13): only the anchor vertices are pinned at their pose
+    positions (no rotations); each pose is solved from the rest mesh. Returns (errors,
+    iterations used per pose)."""
+    d = md.EdgeDeformer(b.rest, b.faces, b.pinned, stretch=stretch, bend=bend)
+    errs, its = [], []
+    for p in b.poses:
+        x = d.solve(p[b.pinned], iterations=iterations, tol=tol, relaxation=relaxation)
+        errs.append(rms_error(x, p, b.diag))
+        its.append(d.last_iterations)
+    return errs, its
+
+
+def edge_rows(b: Bench) -> list[str]:
+    """The edge-based rows of the main table, at the solver's defaults (stretch 1e-4, bend 1)."""
+    rows = []
+    variants = (
+        ("to convergence (tol 1e-5, <= 2000 it.)", 2000, 1.0),
+        ("15 iterations", 15, 1.0),
+        ("relaxation 0.8, to convergence", 2000, 0.8),
+    )
+    for label, iterations, w in variants:
+        errs, its = edge_errors(b, 1e-4, 1.0, iterations, relaxation=w)
+        note = ""
+        if iterations > 15:
+            capped = sum(i >= iterations for i in its)
+            note = f"(iterations: median {int(np.median(its))}, {capped} poses at the cap)"
+        rows.append(fmt_row(f"edge-based, stretch 1e-4, bend 1, {label}", errs, note))
+    return rows
+
+
+def explore_edge(b: Bench) -> None:
+    """Edge-based method over stretch (lambda) with bend 1: chosen on the test poses, so the
+    best row is optimistic."""
+    print("\nedge-based, stretch sweep (bend 1, tol 1e-5, <= 2000 iterations):")
+    print("| variant | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |")
+    print("|" + "---|" * 11)
+    for lam in (0.0, 1e-4, 1e-3, 1e-2, 1e-1):
+        errs, its = edge_errors(b, lam, 1.0, 2000)
+        print(fmt_row(f"stretch {lam:g}", errs, f"(iterations {its})"), flush=True)
+
+
+def explore_pose_space(b: Bench) -> None:
+    """Pose-space variants (docs/pose_space.md): each departs from the defaults in one option."""
+    print("\npose-space variants (held-out error per pose, mean over the 9 poses):")
+    print("| variant | mean | " + " | ".join(f"pose {k}" for k in range(1, 10)) + " |")
+    print("|" + "---|" * 11)
+    variants = {
+        "handle positions only in the pose (orientation_weight 0)": dict(orientation_weight=0.0),
+        "orientation_weight 0.3": dict(orientation_weight=0.3),
+        "orientation_weight 3": dict(orientation_weight=3.0),
+        "all dual edges weigh 1 (reliability_angle inf)": dict(reliability_angle=np.inf),
+        "reliability_angle 0.2": dict(reliability_angle=0.2),
+        "reliability_angle 1.0": dict(reliability_angle=1.0),
+        "geodesic step 1 (3 Gauss-Newton steps)": dict(
+            rotation_energy="geodesic", rotation_iterations=3
+        ),
+        "chordal step 1 converged (300 CG iterations)": dict(rotation_iterations=300),
+        "no handle rotations in step 1": dict(handle_rotations=False),
+        "convex weights": dict(convex_weights=True),
+        "weight smoothing 0.05": dict(weight_regularization=0.05),
+        "position_weight 10": dict(position_weight=10.0),
+        "position_weight 1e4": dict(position_weight=1e4),
+        "coarse 500 faces": dict(coarse=500),
+        "coarse 2000 faces": dict(coarse=2000),
+        "coarse 4000 faces": dict(coarse=4000),
+    }
+    for name, kw in variants.items():
+        print(fmt_row(name, b.pose_space(**kw)), flush=True)
 
 
 # Defaults of learn_stiffness are the paper's recipe. TUNED is the best variant explore() found

@@ -8,9 +8,9 @@ cd "$ROOT"
 
 # OpenBLAS (serial: no thread pool fighting the host's) speeds up the supernodal factorisations;
 # it is also the BLAS that scripts/build_addon.sh bundles into the add-on.
-# clang: the test command builds the core with it too.
+# clang: the test command builds the core with it too. meshoptimizer: the pose-space coarse mesh.
 APT_PACKAGES=(build-essential libeigen3-dev libsuitesparse-dev libopenblas0-serial libgtest-dev clang-format
-  clang)
+  clang libmeshoptimizer-dev)
 missing=()
 for p in "${APT_PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

@@ -16,7 +16,7 @@ CH="${MD_DEBIAN13_DIR:-$ROOT/.cache/debian13}"
 MIRROR="${MD_DEBIAN_MIRROR:-http://deb.debian.org/debian}"
 PKGS=(blender python3-numpy python3-pytest libegl1 libegl-mesa0 libgl1-mesa-dri
   gcc g++ libc6-dev cmake ninja-build python3-dev python3-pip python3-pybind11 pybind11-dev
-  python3-scikit-build-core libeigen3-dev libsuitesparse-dev)
+  python3-scikit-build-core libeigen3-dev libsuitesparse-dev libmeshoptimizer-dev)
 
 if [[ "$(id -u)" -ne 0 ]]; then
   echo "SKIPPED: the Debian 13 chroot needs root" >&2

@@ -23,4 +23,5 @@ void bind_mesh(py::module_& m) {
             py::array_t<int>(static_cast<py::ssize_t>(label.size()), label.data()), count);
       },
       py::arg("num_faces"), py::arg("pairs"));
+  m.def("mesh_edges", &mesh_edges, py::arg("faces"), "(E,2) undirected edges a < b, sorted");
 }

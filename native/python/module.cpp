@@ -13,6 +13,8 @@ void bind_deformer(py::module_& m);
 void bind_threads(py::module_& m);
 void bind_learn(py::module_& m);
 void bind_pyramid_deformer(py::module_& m);
+void bind_edge_deformer(py::module_& m);
+void bind_pose_space_deformer(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
   m.doc() = "Material-aware mesh deformation core (C++)";
@@ -25,4 +27,6 @@ PYBIND11_MODULE(_core, m) {
   bind_threads(m);
   bind_learn(m);
   bind_pyramid_deformer(m);
+  bind_edge_deformer(m);
+  bind_pose_space_deformer(m);
 }

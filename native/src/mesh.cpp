@@ -142,6 +142,25 @@ Eigen::VectorXd double_areas(const Vertices& vertices, const Faces& faces) {
   return out;
 }
 
+IndexPairs mesh_edges(const Faces& faces) {
+  std::vector<std::array<int, 2>> sides;
+  sides.reserve(static_cast<size_t>(3 * faces.rows()));
+  for (Eigen::Index f = 0; f < faces.rows(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const int a = faces(f, k), b = faces(f, (k + 1) % 3);
+      if (a != b) sides.push_back({std::min(a, b), std::max(a, b)});
+    }
+  }
+  std::sort(sides.begin(), sides.end());
+  sides.erase(std::unique(sides.begin(), sides.end()), sides.end());
+  IndexPairs out(static_cast<Eigen::Index>(sides.size()), 2);
+  for (size_t e = 0; e < sides.size(); ++e) {
+    out(static_cast<Eigen::Index>(e), 0) = sides[e][0];
+    out(static_cast<Eigen::Index>(e), 1) = sides[e][1];
+  }
+  return out;
+}
+
 }  // namespace matdeform
 
 namespace matdeform {

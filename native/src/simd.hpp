@@ -51,6 +51,19 @@ typedef double Vec4d __attribute__((vector_size(32), aligned(8), may_alias));
 // Their bit patterns, for building doubles from integer fields (exp4): a cast between the two,
 // (Vec4u)x, keeps the bits.
 typedef std::uint64_t Vec4u __attribute__((vector_size(32), aligned(8)));
+// Lane masks, as comparisons of two Vec4d give them (all bits set where true).
+typedef long long Vec4m __attribute__((vector_size(32), aligned(8), may_alias));
+
+// Lane helpers, as macros: a function returning a vector warns about the ABI in the baseline
+// build. MD_SELECT4(m, a, b) is lane-wise m ? a : b (m from a comparison, all bits set where
+// true). MD_UNPACK_EVEN/ODD(a, b) give {a0, b0, a2, b2} and {a1, b1, a3, b3}, the pairings of a
+// 4x4 transpose; MD_LOW/HIGH_HALVES(a, b) give {a0, a1, b0, b1} and {a2, a3, b2, b3}.
+// __builtin_shufflevector is in Clang and in GCC >= 12.
+#define MD_SELECT4(m, a, b) ((Vec4d)((((Vec4m)(a)) & (m)) | (((Vec4m)(b)) & ~(m))))
+#define MD_UNPACK_EVEN(a, b) __builtin_shufflevector((a), (b), 0, 4, 2, 6)
+#define MD_UNPACK_ODD(a, b) __builtin_shufflevector((a), (b), 1, 5, 3, 7)
+#define MD_LOW_HALVES(a, b) __builtin_shufflevector((a), (b), 0, 1, 4, 5)
+#define MD_HIGH_HALVES(a, b) __builtin_shufflevector((a), (b), 2, 3, 6, 7)
 
 #else
 
@@ -98,7 +111,14 @@ struct MD_MAY_ALIAS Lanes4 {
 MD_LANES4_OP(+)
 MD_LANES4_OP(-)
 MD_LANES4_OP(*)
+MD_LANES4_OP(/)
+MD_LANES4_OP(&)
 #undef MD_LANES4_OP
+
+template <class T>
+MD_ALWAYS_INLINE Lanes4<T> operator-(const Lanes4<T>& a) {
+  return {{-a.v[0], -a.v[1], -a.v[2], -a.v[3]}};
+}
 
 template <class T>
 MD_ALWAYS_INLINE Lanes4<T> operator<<(const Lanes4<T>& a, int n) {
@@ -107,6 +127,41 @@ MD_ALWAYS_INLINE Lanes4<T> operator<<(const Lanes4<T>& a, int n) {
 
 typedef Lanes4<double> Vec4d;
 typedef Lanes4<std::uint64_t> Vec4u;
+typedef Lanes4<long long> Vec4m;  // lane masks: -1 where true, 0 where false
+
+// Comparisons give masks, as with the vector extension.
+#define MD_LANES4_CMP(op)                                                    \
+  MD_ALWAYS_INLINE Vec4m operator op(const Vec4d& a, const Vec4d& b) {       \
+    return {{a.v[0] op b.v[0] ? -1LL : 0LL, a.v[1] op b.v[1] ? -1LL : 0LL,   \
+             a.v[2] op b.v[2] ? -1LL : 0LL, a.v[3] op b.v[3] ? -1LL : 0LL}}; \
+  }                                                                          \
+  MD_ALWAYS_INLINE Vec4m operator op(const Vec4d& a, double s) { return a op Vec4d{{s, s, s, s}}; }
+MD_LANES4_CMP(>)
+MD_LANES4_CMP(<)
+#undef MD_LANES4_CMP
+
+// The lane helpers of the vector-extension build (see there).
+#define MD_SELECT4 select4
+#define MD_UNPACK_EVEN unpack_even
+#define MD_UNPACK_ODD unpack_odd
+#define MD_LOW_HALVES low_halves
+#define MD_HIGH_HALVES high_halves
+MD_ALWAYS_INLINE Vec4d select4(const Vec4m& m, const Vec4d& a, const Vec4d& b) {
+  return {{m.v[0] ? a.v[0] : b.v[0], m.v[1] ? a.v[1] : b.v[1], m.v[2] ? a.v[2] : b.v[2],
+           m.v[3] ? a.v[3] : b.v[3]}};
+}
+MD_ALWAYS_INLINE Vec4d unpack_even(const Vec4d& a, const Vec4d& b) {
+  return {{a.v[0], b.v[0], a.v[2], b.v[2]}};
+}
+MD_ALWAYS_INLINE Vec4d unpack_odd(const Vec4d& a, const Vec4d& b) {
+  return {{a.v[1], b.v[1], a.v[3], b.v[3]}};
+}
+MD_ALWAYS_INLINE Vec4d low_halves(const Vec4d& a, const Vec4d& b) {
+  return {{a.v[0], a.v[1], b.v[0], b.v[1]}};
+}
+MD_ALWAYS_INLINE Vec4d high_halves(const Vec4d& a, const Vec4d& b) {
+  return {{a.v[2], a.v[3], b.v[2], b.v[3]}};
+}
 
 #endif
 

@@ -3,6 +3,7 @@
 #include <cholmod.h>
 
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <mutex>
@@ -19,6 +20,8 @@
 namespace matdeform {
 
 namespace {
+
+std::atomic<long long> g_factorizations{0};
 
 constexpr int kWidth = 4;  // right-hand sides per pass; 3 coordinates fill it with one pad
 
@@ -392,7 +395,10 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
     impl_->sub = std::make_unique<Substitution>(impl_->L);
     cholmod_free_factor(&impl_->L, c);  // the copy above is all the solves need
   }
+  g_factorizations.fetch_add(1, std::memory_order_relaxed);
 }
+
+long long SparseCholesky::factorizations() { return g_factorizations.load(); }
 
 SparseCholesky::~SparseCholesky() = default;
 

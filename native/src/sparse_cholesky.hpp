@@ -43,6 +43,9 @@ class SparseCholesky {
   void solve_permuted4(double* Y) const;
   // Threads the last PerPose solve ran its substitution on (1 = serial; 0 for Once factors).
   int substitution_threads() const;
+  // Successful factorisations in this process so far (all instances), so that tests can prove
+  // a solver does not refactor per solve.
+  static long long factorizations();
 
  private:
   struct Impl;

@@ -212,12 +212,12 @@ TransformLog transform_log(const Eigen::Matrix3d& M) {
     throw std::invalid_argument(msg.str());
   }
   TransformLog out;
-  out.log_stretch = U * log_sigma.asDiagonal() * U.transpose();
   out.rotation = rotation_log(U * svd.matrixV().transpose());
-  out.similarity = is_scalar_matrix(out.log_stretch);
-  if (out.similarity) {
-    out.log_stretch = (out.log_stretch.trace() / 3.0) * Eigen::Matrix3d::Identity();
-  }
+  // Round-off as round-off: a spread of the log scales within kSimilarityTolerance (float32
+  // matrices, products of a few) is a similarity, blended in closed form.
+  out.similarity = log_sigma.maxCoeff() - log_sigma.minCoeff() <= kSimilarityTolerance;
+  out.log_stretch = out.similarity ? (log_sigma.sum() / 3.0) * Eigen::Matrix3d::Identity()
+                                   : Eigen::Matrix3d(U * log_sigma.asDiagonal() * U.transpose());
   return out;
 }
 
@@ -256,6 +256,48 @@ bool similarity_logs(const std::vector<TransformLog>& logs, std::vector<double>*
   return true;
 }
 
+// sc * Rodrigues(x, y, z) for four lanes, column-major into o[0..8]: sc (I + A K + B K^2) with
+// K = [(x, y, z)]x and the series coefficients A = sin t / t, B = (1 - cos t) / t^2.
+MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x, const Vec4d& y, const Vec4d& z, const Vec4d& sc,
+                                 Vec4d* o) {
+  const Vec4d t2 = x * x + y * y + z * z;
+  const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
+  Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
+  for (int j = kSeriesTerms - 2; j >= 0; --j) {
+    A = A * t2 + kSeries.a[j];
+    B = B * t2 + kSeries.b[j];
+  }
+  for (int l = 0; l < kGroupFaces; ++l) {
+    if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
+      double a, b;
+      trig_coefficients(t2[l], &a, &b);
+      A[l] = a;
+      B[l] = b;
+    }
+  }
+  A *= sc;
+  B *= sc;
+  const Vec4d xx = x * x, yy = y * y, zz = z * z, xy = x * y, xz = x * z, yz = y * z;
+  o[0] = sc - B * (yy + zz);
+  o[1] = A * z + B * xy;
+  o[2] = B * xz - A * y;
+  o[3] = B * xy - A * z;
+  o[4] = sc - B * (xx + zz);
+  o[5] = A * x + B * yz;
+  o[6] = A * y + B * xz;
+  o[7] = B * yz - A * x;
+  o[8] = sc - B * (xx + yy);
+}
+
+// Weights of anchor a for the four faces from f0 (padding lanes: 0, i.e. the identity). An out
+// parameter, not a return value: returning a vector type from a baseline-built function
+// changes its ABI (-Wpsabi), even inlined.
+MD_ALWAYS_INLINE void lane_weights(const double* W, int k, int m, int f0, int a, Vec4d* w) {
+  for (int l = 0; l < kGroupFaces; ++l) {
+    (*w)[l] = f0 + l < m ? W[static_cast<size_t>(f0 + l) * k + a] : 0.0;
+  }
+}
+
 // Isotropic similarity blend, exp(s I + [w]x) = e^s Rodrigues(w), for the faces of groups
 // [gb, ge), four at a time: W is the (m,k) row-major weights, P as from similarity_logs.
 MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, const double* W,
@@ -265,44 +307,16 @@ MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, co
     Vec4d x = {0.0, 0.0, 0.0, 0.0}, y = x, z = x, s = x;
     for (int a = 0; a < k; ++a) {
       Vec4d w;
-      for (int l = 0; l < kGroupFaces; ++l) {
-        w[l] = f0 + l < m ? W[static_cast<size_t>(f0 + l) * k + a] : 0.0;  // padding: identity
-      }
+      lane_weights(W, k, m, f0, a, &w);
       x += w * P[4 * a];
       y += w * P[4 * a + 1];
       z += w * P[4 * a + 2];
       s += w * P[4 * a + 3];
     }
-    const Vec4d t2 = x * x + y * y + z * z;
-    const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
-    Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
-    for (int j = kSeriesTerms - 2; j >= 0; --j) {
-      A = A * t2 + kSeries.a[j];
-      B = B * t2 + kSeries.b[j];
-    }
-    for (int l = 0; l < kGroupFaces; ++l) {
-      if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
-        double a, b;
-        trig_coefficients(t2[l], &a, &b);
-        A[l] = a;
-        B[l] = b;
-      }
-    }
     Vec4d sc = {1.0, 1.0, 1.0, 1.0};
     if (scaled) exp4(s, &sc);
-    A *= sc;
-    B *= sc;
-    const Vec4d xx = x * x, yy = y * y, zz = z * z, xy = x * y, xz = x * z, yz = y * z;
-    Vec4d* o = reinterpret_cast<Vec4d*>(out + static_cast<size_t>(kGroupStride) * (g - gb));
-    o[0] = sc - B * (yy + zz);
-    o[1] = A * z + B * xy;
-    o[2] = B * xz - A * y;
-    o[3] = B * xy - A * z;
-    o[4] = sc - B * (xx + zz);
-    o[5] = A * x + B * yz;
-    o[6] = A * y + B * xz;
-    o[7] = B * yz - A * x;
-    o[8] = sc - B * (xx + yy);
+    rodrigues4(x, y, z, sc,
+               reinterpret_cast<Vec4d*>(out + static_cast<size_t>(kGroupStride) * (g - gb)));
   }
 }
 void blend_similar_base(const double* P, int k, bool scaled, const double* W, int m, int gb, int ge,
@@ -312,6 +326,154 @@ void blend_similar_base(const double* P, int k, bool scaled, const double* W, in
 MD_TARGET_AVX2 void blend_similar_avx2(const double* P, int k, bool scaled, const double* W, int m,
                                        int gb, int ge, double* out) {
   blend_similar_body(P, k, scaled, W, m, gb, ge, out);
+}
+
+// --- General (non-similarity) blends --------------------------------------------------------
+//
+// exp(L) R(w) with L = sum_a w_a log S_a symmetric and w = sum_a w_a log R_a, four faces at a
+// time. Symmetric 3x3 matrices are kept as their six entries (xx, yy, zz, xy, xz, yz).
+
+// Per anchor: rotation log (3) and the six entries of log S, 9 doubles.
+constexpr int kGeneralStride = 9;
+std::vector<double> general_logs(const std::vector<TransformLog>& logs) {
+  std::vector<double> P(kGeneralStride * logs.size());
+  for (size_t a = 0; a < logs.size(); ++a) {
+    const Eigen::Matrix3d& L = logs[a].log_stretch;
+    double* p = &P[kGeneralStride * a];
+    for (int c = 0; c < 3; ++c) p[c] = logs[a].rotation(c);
+    p[3] = L(0, 0), p[4] = L(1, 1), p[5] = L(2, 2);
+    p[6] = 0.5 * (L(0, 1) + L(1, 0)), p[7] = 0.5 * (L(0, 2) + L(2, 0));
+    p[8] = 0.5 * (L(1, 2) + L(2, 1));
+  }
+  return P;
+}
+
+// C = A B for symmetric A, B that commute (so C is symmetric), six entries each.
+MD_ALWAYS_INLINE void sym_mul(const Vec4d* A, const Vec4d* B, Vec4d* C) {
+  const Vec4d xx = A[0] * B[0] + A[3] * B[3] + A[4] * B[4];
+  const Vec4d yy = A[3] * B[3] + A[1] * B[1] + A[5] * B[5];
+  const Vec4d zz = A[4] * B[4] + A[5] * B[5] + A[2] * B[2];
+  const Vec4d xy = A[0] * B[3] + A[3] * B[1] + A[4] * B[5];
+  const Vec4d xz = A[0] * B[4] + A[3] * B[5] + A[4] * B[2];
+  const Vec4d yz = A[3] * B[4] + A[1] * B[5] + A[5] * B[2];
+  C[0] = xx, C[1] = yy, C[2] = zz, C[3] = xy, C[4] = xz, C[5] = yz;
+}
+
+// o = E R (column-major 3x3 into o[0..8]) for symmetric E (six entries) and R column-major.
+MD_ALWAYS_INLINE void sym_times(const Vec4d* E, const Vec4d* R, Vec4d* o) {
+  for (int c = 0; c < 3; ++c) {
+    const Vec4d r0 = R[3 * c], r1 = R[3 * c + 1], r2 = R[3 * c + 2];
+    o[3 * c] = E[0] * r0 + E[3] * r1 + E[4] * r2;
+    o[3 * c + 1] = E[3] * r0 + E[1] * r1 + E[5] * r2;
+    o[3 * c + 2] = E[4] * r0 + E[5] * r1 + E[2] * r2;
+  }
+}
+
+// One anchor b is stretched, the others are similarities: L = s I + w_b D_b with D_b the
+// deviatoric part of log S_b = V diag(lambda) V^T, so exp(L) = sum_c exp(s + w_b lambda_c) Q_c
+// with Q_c = v_c v_c^T (six entries each, 18 doubles in Q): three scalar exps per face, exact.
+// P holds (rotation log, trace/3 of log S) per anchor, 4 doubles as in similarity_logs.
+MD_ALWAYS_INLINE void blend_one_stretch_body(const double* P, int k, int b, const double* lambda,
+                                             const double* Q, const double* W, int m, int gb,
+                                             int ge, double* out) {
+  for (int g = gb; g < ge; ++g) {
+    const int f0 = kGroupFaces * g;
+    Vec4d x = {0.0, 0.0, 0.0, 0.0}, y = x, z = x, s = x, wb = x;
+    for (int a = 0; a < k; ++a) {
+      Vec4d w;
+      lane_weights(W, k, m, f0, a, &w);
+      x += w * P[4 * a];
+      y += w * P[4 * a + 1];
+      z += w * P[4 * a + 2];
+      s += w * P[4 * a + 3];
+      if (a == b) wb = w;
+    }
+    Vec4d E[6];
+    for (int e = 0; e < 6; ++e) E[e] = x * 0.0;
+    for (int c = 0; c < 3; ++c) {
+      Vec4d ec;
+      exp4(s + wb * lambda[c], &ec);
+      for (int e = 0; e < 6; ++e) E[e] += ec * Q[6 * c + e];
+    }
+    Vec4d R[9];
+    const Vec4d one = {1.0, 1.0, 1.0, 1.0};
+    rodrigues4(x, y, z, one, R);
+    sym_times(E, R, reinterpret_cast<Vec4d*>(out + static_cast<size_t>(kGroupStride) * (g - gb)));
+  }
+}
+void blend_one_stretch_base(const double* P, int k, int b, const double* lambda, const double* Q,
+                            const double* W, int m, int gb, int ge, double* out) {
+  blend_one_stretch_body(P, k, b, lambda, Q, W, m, gb, ge, out);
+}
+MD_TARGET_AVX2 void blend_one_stretch_avx2(const double* P, int k, int b, const double* lambda,
+                                           const double* Q, const double* W, int m, int gb, int ge,
+                                           double* out) {
+  blend_one_stretch_body(P, k, b, lambda, Q, W, m, gb, ge, out);
+}
+
+// Any anchors: exp(L) = e^s exp(D) with D = L - s I, s = tr L / 3, by scaling and squaring:
+// exp(D) = exp(D / 2^j)^(2^j) with |D / 2^j|_F <= 1/4 and a Taylor polynomial (Horner) whose
+// remainder r^(K+1)/(K+1)! is below 1e-17 (r = the group's largest |D / 2^j|_F). j and K are
+// chosen per group, so faces far from a stretched anchor (small D) take few terms.
+MD_ALWAYS_INLINE void blend_taylor_body(const double* P, int k, const double* W, int m, int gb,
+                                        int ge, double* out) {
+  for (int g = gb; g < ge; ++g) {
+    const int f0 = kGroupFaces * g;
+    const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
+    Vec4d x = zero, y = zero, z = zero, L[6] = {zero, zero, zero, zero, zero, zero};
+    for (int a = 0; a < k; ++a) {
+      Vec4d w;
+      lane_weights(W, k, m, f0, a, &w);
+      const double* p = P + kGeneralStride * a;
+      x += w * p[0];
+      y += w * p[1];
+      z += w * p[2];
+      for (int e = 0; e < 6; ++e) L[e] += w * p[3 + e];
+    }
+    const Vec4d s = (L[0] + L[1] + L[2]) * (1.0 / 3.0);
+    Vec4d D[6] = {L[0] - s, L[1] - s, L[2] - s, L[3], L[4], L[5]};
+    const Vec4d n2 =
+        D[0] * D[0] + D[1] * D[1] + D[2] * D[2] + (D[3] * D[3] + D[4] * D[4] + D[5] * D[5]) * 2.0;
+    double r = 0.0;
+    for (int l = 0; l < kGroupFaces; ++l) r = std::max(r, n2[l]);
+    r = std::sqrt(r);
+    int squarings = 0;
+    while (r > 0.25) {
+      r *= 0.5;
+      ++squarings;
+    }
+    const double h = std::ldexp(1.0, -squarings);
+    for (int e = 0; e < 6; ++e) D[e] *= h;
+    int terms = 0;  // smallest K with r^(K+1) / (K+1)! <= 1e-17
+    for (double rem = r; rem > 1e-17; rem *= r / (terms + 1)) ++terms;
+    Vec4d E[6] = {zero + 1.0, zero + 1.0, zero + 1.0, zero, zero, zero};
+    for (int t = terms; t >= 1; --t) {  // E = I + (D / t) E
+      Vec4d DE[6];
+      sym_mul(D, E, DE);
+      const double inv = 1.0 / t;
+      for (int e = 0; e < 6; ++e) E[e] = DE[e] * inv;
+      E[0] += 1.0, E[1] += 1.0, E[2] += 1.0;
+    }
+    for (int q = 0; q < squarings; ++q) {
+      Vec4d E2[6];
+      sym_mul(E, E, E2);
+      for (int e = 0; e < 6; ++e) E[e] = E2[e];
+    }
+    Vec4d es;
+    exp4(s, &es);
+    for (int e = 0; e < 6; ++e) E[e] *= es;
+    Vec4d R[9];
+    rodrigues4(x, y, z, zero + 1.0, R);
+    sym_times(E, R, reinterpret_cast<Vec4d*>(out + static_cast<size_t>(kGroupStride) * (g - gb)));
+  }
+}
+void blend_taylor_base(const double* P, int k, const double* W, int m, int gb, int ge,
+                       double* out) {
+  blend_taylor_body(P, k, W, m, gb, ge, out);
+}
+MD_TARGET_AVX2 void blend_taylor_avx2(const double* P, int k, const double* W, int m, int gb,
+                                      int ge, double* out) {
+  blend_taylor_body(P, k, W, m, gb, ge, out);
 }
 
 // Groups [gb, ge) from a per-face kernel that writes faces [b, e) to T[0 .. e - b).
@@ -366,16 +528,44 @@ void blend_groups(const std::vector<TransformLog>& logs, const RowMatrix& weight
   if (static_cast<int>(logs.size()) != k) {
     throw std::invalid_argument("blend: one log per weight column expected");
   }
+  const bool avx2 = cpu_has_avx2_fma();
   std::vector<double> P;
   bool scaled = false;
-  if (!similarity_logs(logs, &P, &scaled)) {
-    groups_from_faces(m, group_begin, group_end, out, [&](int b, int e, Eigen::Matrix3d* T) {
-      blend_range(logs, weights, b, e, T);
-    });
+  if (similarity_logs(logs, &P, &scaled)) {
+    (avx2 ? blend_similar_avx2 : blend_similar_base)(P.data(), k, scaled, weights.data(), m,
+                                                     group_begin, group_end, out);
     return;
   }
-  (cpu_has_avx2_fma() ? blend_similar_avx2 : blend_similar_base)(
-      P.data(), k, scaled, weights.data(), m, group_begin, group_end, out);
+  int stretched = -1, count = 0;
+  for (int a = 0; a < k; ++a) {
+    if (!logs[static_cast<size_t>(a)].similarity) stretched = a, ++count;
+  }
+  if (count == 1) {  // the usual non-similarity pose: one Empty scaled non-uniformly
+    const Eigen::Matrix3d& Lb = logs[static_cast<size_t>(stretched)].log_stretch;
+    P.assign(4 * static_cast<size_t>(k), 0.0);
+    for (int a = 0; a < k; ++a) {
+      for (int c = 0; c < 3; ++c) P[4 * a + c] = logs[static_cast<size_t>(a)].rotation(c);
+      P[4 * a + 3] = logs[static_cast<size_t>(a)].log_stretch.trace() / 3.0;
+    }
+    const double sb = Lb.trace() / 3.0;
+    Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (Lb + Lb.transpose()) -
+                                                      sb * Eigen::Matrix3d::Identity());
+    const Eigen::Vector3d lambda = es.eigenvalues();
+    const Eigen::Matrix3d& V = es.eigenvectors();
+    double Q[18];
+    for (int c = 0; c < 3; ++c) {
+      const Eigen::Vector3d v = V.col(c);
+      const double q[6] = {v(0) * v(0), v(1) * v(1), v(2) * v(2),
+                           v(0) * v(1), v(0) * v(2), v(1) * v(2)};
+      for (int e = 0; e < 6; ++e) Q[6 * c + e] = q[e];
+    }
+    (avx2 ? blend_one_stretch_avx2 : blend_one_stretch_base)(
+        P.data(), k, stretched, lambda.data(), Q, weights.data(), m, group_begin, group_end, out);
+    return;
+  }
+  const std::vector<double> G = general_logs(logs);
+  (avx2 ? blend_taylor_avx2 : blend_taylor_base)(G.data(), k, weights.data(), m, group_begin,
+                                                 group_end, out);
 }
 
 namespace {

@@ -1,9 +1,13 @@
-"""matdeform: material-aware mesh deformation (Popa, Julius, Sheffer 2006) and more solvers.
+"""matdeform: mesh deformation solvers with a numpy API: material-aware deformation (Popa,
+Julius, Sheffer 2006), edge-based iterative material deformation (cloth, membranes, shells),
+pose-space surface manipulation from example shapes and shape-preserving pyramid coordinates.
 
-numpy in, numpy out; the solver is a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
+numpy in, numpy out; the solvers are a compiled C++ core (Eigen + CHOLMOD). Never imports bpy.
 """
 
+from . import shapes  # procedural test and demo meshes: md.shapes.tube(...)
 from .deformer import MaterialDeformer
+from .edge import EdgeDeformer
 from .frames import deformation_gradients
 from .learn import (
     learn_distortions,
@@ -12,8 +16,15 @@ from .learn import (
     smooth_distortions,
     stiffness_from_distortion,
 )
-from .mesh import boundary_and_nonmanifold_edges, dual_edges, face_components, faces_inside
+from .mesh import (
+    boundary_and_nonmanifold_edges,
+    dual_edges,
+    face_components,
+    faces_inside,
+    mesh_edges,
+)
 from .obj import read_obj, write_obj
+from .pose_space import PoseSpaceDeformer
 from .pyramid import PyramidDeformer, pyramid_coordinates
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
@@ -23,8 +34,10 @@ from .weights import harmonic_weights
 __version__ = "0.1.0"
 
 __all__ = [
+    "EdgeDeformer",
     "MaterialDeformer",
     "PyramidDeformer",
+    "PoseSpaceDeformer",
     "bend_from_shear",
     "bend_from_vertex",
     "blend_transforms",
@@ -37,11 +50,13 @@ __all__ = [
     "num_threads",
     "learn_distortions",
     "learn_stiffness",
+    "mesh_edges",
     "polar_decompose",
     "pyramid_coordinates",
     "read_obj",
     "rotation_spread",
     "set_num_threads",
+    "shapes",
     "shear_from_vertex",
     "smooth_distortions",
     "stiffness_from_distortion",

@@ -56,3 +56,14 @@ def face_components(faces) -> tuple[np.ndarray, int]:
     pairs, _ = _core.dual_edges(f)
     labels, count = _core.face_components(f.shape[0], pairs)
     return labels.astype(np.int64), int(count)
+
+
+def mesh_edges(faces) -> np.ndarray:
+    """Undirected edges (E,2) int64 of the faces (m,3): a < b, unique, sorted lexicographically.
+
+    The order of per-edge arrays such as ``EdgeDeformer(edge_weight=...)``.
+    """
+    f = as_int_array(faces, "faces", 2)
+    if f.shape[1] != 3:
+        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    return _core.mesh_edges(f).astype(np.int64)

@@ -185,6 +185,93 @@ TEST(Transforms, GroupedBlendBeyondTheVectorExpRange) {
   EXPECT_LT(grouped_blend_error(logs, 41), 1e-13);
 }
 
+namespace {
+Eigen::Matrix3d rounded_to_float(const Eigen::Matrix3d& M) {
+  return M.cast<float>().cast<double>();
+}
+
+// Both kernel builds (baseline, and AVX2 where the CPU has it): the worst grouped-blend error.
+double grouped_blend_error_both_builds(const std::vector<TransformLog>& logs, int m) {
+  const double fast = grouped_blend_error(logs, m);
+  const bool avx2_before = set_avx2_kernels_enabled(false);
+  const double base = grouped_blend_error(logs, m);
+  set_avx2_kernels_enabled(avx2_before);
+  return std::max(fast, base);
+}
+}  // namespace
+
+TEST(Transforms, FloatRoundOffOfASimilarityIsSnappedToIt) {
+  // A rotation times a uniform scale, stored in float32 the way Blender keeps matrices, and a
+  // product of four such (the add-on's inv(M_obj) M_now inv(M_bind) M_obj_bind).
+  std::mt19937 rng(5);
+  std::normal_distribution<double> g;
+  for (int t = 0; t < 200; ++t) {
+    Eigen::Matrix3d prod = Eigen::Matrix3d::Identity();
+    for (int f = 0; f < 4; ++f) {
+      const Eigen::Vector3d axis = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      const double scale = std::exp(0.5 * g(rng));
+      const Eigen::Matrix3d M =
+          rounded_to_float(scale * Eigen::AngleAxisd(3.0 * g(rng), axis).toRotationMatrix());
+      prod = f % 2 ? Eigen::Matrix3d(prod * M.inverse()) : Eigen::Matrix3d(prod * M);
+      const TransformLog one = transform_log(M);
+      ASSERT_TRUE(one.similarity) << t;
+      // snapped to the similarity it is up to round-off: the map moves by < 1e-6 relative
+      EXPECT_LT((transform_exp(one) - M).norm(), 1e-6 * M.norm());
+    }
+    const TransformLog L = transform_log(prod);
+    ASSERT_TRUE(L.similarity) << t;
+    EXPECT_LT((transform_exp(L) - prod).norm(), 1e-6 * prod.norm());
+    EXPECT_EQ((L.log_stretch - L.log_stretch(0, 0) * Eigen::Matrix3d::Identity()).norm(), 0.0);
+  }
+}
+
+TEST(Transforms, GenuineNonUniformScaleIsNotSnapped) {
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(0.8, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+  for (double eps : {3e-6, 1e-4, 0.3}) {
+    const Eigen::Matrix3d M = R * Eigen::Vector3d(1.0 + eps, 1.0, 1.0).asDiagonal();
+    const TransformLog L = transform_log(M);
+    EXPECT_FALSE(L.similarity) << eps;
+    EXPECT_LT((transform_exp(L) - M).norm(), 1e-13) << eps;  // kept exactly
+  }
+  // just inside the tolerance: a similarity, off by at most that relative amount
+  const Eigen::Matrix3d M = R * Eigen::Vector3d(1.0 + 5e-7, 1.0, 1.0).asDiagonal();
+  const TransformLog L = transform_log(M);
+  EXPECT_TRUE(L.similarity);
+  EXPECT_LT((transform_exp(L) - M).norm(), 1e-6);
+}
+
+TEST(Transforms, GroupedBlendWithOneNonUniformlyScaledAnchor) {
+  // The usual non-similarity pose (one Empty scaled along its own axes): the kernel that
+  // exponentiates in that anchor's eigenbasis, against blend_logs (eigen-solve per face).
+  const Eigen::Matrix3d Rb =
+      Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.2, 1, -0.5).normalized()).matrix();
+  const std::vector<TransformLog> logs = {
+      transform_log(Eigen::AngleAxisd(0.4, Eigen::Vector3d::UnitX()).toRotationMatrix()),
+      transform_log(Rb * Eigen::Vector3d(1.3, 1.0, 0.8).asDiagonal() * Rb.transpose() *
+                    Eigen::AngleAxisd(-0.9, Eigen::Vector3d::UnitZ()).toRotationMatrix()),
+      transform_log(1.7 * Eigen::AngleAxisd(2.9, Eigen::Vector3d::UnitY()).toRotationMatrix())};
+  ASSERT_TRUE(logs[0].similarity && !logs[1].similarity && logs[2].similarity);
+  EXPECT_LT(grouped_blend_error_both_builds(logs, 203), 1e-13);
+}
+
+TEST(Transforms, GroupedBlendWithSeveralStretchedAnchors) {
+  // Stretches that do not commute, up to a 40x ratio (log-stretch norm ~3: two squarings and
+  // more), and one tiny one: the scaling-and-squaring Taylor kernel against blend_logs.
+  std::vector<TransformLog> logs = {
+      transform_log(Eigen::Vector3d(40.0, 1.0, 0.5).asDiagonal() *
+                    Eigen::AngleAxisd(0.3, Eigen::Vector3d::UnitZ()).toRotationMatrix()),
+      transform_log(Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 1, 0).normalized()).matrix() *
+                    Eigen::Vector3d(0.9, 1.2, 1.0).asDiagonal()),
+      transform_log(Eigen::Vector3d(1.0 + 1e-5, 1.0, 1.0).asDiagonal() *
+                    Eigen::AngleAxisd(2.0, Eigen::Vector3d::UnitX()).toRotationMatrix()),
+      transform_log(2.0 * Eigen::Matrix3d::Identity())};
+  ASSERT_FALSE(logs[0].similarity || logs[1].similarity || logs[2].similarity);
+  EXPECT_LT(grouped_blend_error_both_builds(logs, 203), 1e-12);
+  // a zero deviatoric part in some faces (weights only on the similarity anchor)
+  std::vector<TransformLog> two = {logs[3], logs[1]};
+  EXPECT_LT(grouped_blend_error_both_builds(two, 9), 1e-13);
+}
+
 TEST(Transforms, AnisotropicBlendWithEqualWeightsIsIsotropic) {
   std::vector<TransformLog> logs = {
       transform_log(

@@ -131,3 +131,27 @@ def reposition(V, F, shear, T, fixed, fixed_pos):
     X[fixed] = fixed_pos
     X[free] = np.linalg.lstsq(A[:, free], B, rcond=None)[0]
     return X[:n]
+
+
+def polar_blend(transforms3, W, snap=0.0):
+    """The method's blend for general matrices (transforms.hpp): M = S R (left polar),
+    exp(sum w log S) exp(sum w log R), with scipy's logm/expm and rotation vectors. ``snap``:
+    a stretch whose log singular values spread by at most this is replaced by its geometric
+    mean times I (the core's kSimilarityTolerance is 1e-6)."""
+    from scipy.spatial.transform import Rotation
+
+    logs_s, logs_r = [], []
+    for T in transforms3:
+        R, S = sla.polar(T, side="left")  # T = S R
+        log_sigma = np.log(np.linalg.svd(T, compute_uv=False))
+        if np.ptp(log_sigma) <= snap:
+            logs_s.append(log_sigma.mean() * np.eye(3))
+        else:
+            logs_s.append(sla.logm(S).real)
+        logs_r.append(Rotation.from_matrix(R).as_rotvec())
+    out = []
+    for row in W:
+        L = sum(w * x for w, x in zip(row, logs_s, strict=True))
+        r = sum(w * x for w, x in zip(row, logs_r, strict=True))
+        out.append(sla.expm(L) @ Rotation.from_rotvec(r).as_matrix())
+    return np.array(out)

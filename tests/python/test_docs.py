@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -60,7 +62,16 @@ def run_page(page: Path, want_bpy: bool) -> int:
 
 @pytest.mark.parametrize("page", PAGES, ids=[p.name for p in PAGES])
 def test_python_snippets_run(page):
-    run_page(page, want_bpy=False)
+    """In a fresh interpreter, as a reader would run them (no module this suite imported)."""
+    code = (
+        "import sys; sys.path.insert(0, sys.argv[1]); import test_docs; "
+        "from pathlib import Path; test_docs.run_page(Path(sys.argv[2]), want_bpy=False)"
+    )
+    here = str(Path(__file__).resolve().parent)
+    r = subprocess.run(
+        [sys.executable, "-c", code, here, str(page)], capture_output=True, text=True, timeout=600
+    )
+    assert r.returncode == 0, r.stdout[-3000:] + r.stderr[-3000:]
 
 
 def test_the_readme_has_a_runnable_snippet():

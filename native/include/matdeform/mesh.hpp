@@ -81,5 +81,8 @@ struct VertexFans {
 
 // faces must hold indices in [0, num_vertices) (validate_mesh()).
 VertexFans vertex_fans(int num_vertices, const Faces& faces);
+// Undirected mesh edges (a, b), a < b, one row per edge used by any face, sorted
+// lexicographically: the order per-edge arrays (edge weights) use.
+IndexPairs mesh_edges(const Faces& faces);
 
 }  // namespace matdeform

@@ -21,6 +21,15 @@ namespace matdeform {
 // valid logs with convex weights stay inside.
 constexpr double kMaxLogStretch = 709.0;
 
+// A linear map whose singular values agree to this relative spread, max(log sigma) -
+// min(log sigma) <= kSimilarityTolerance, is taken as the similarity it is up to round-off
+// (rotation times the geometric mean of the scales): transform_log snaps it, so blends take the
+// closed-form path. Blender stores matrices in float32 (about 6e-8 relative per entry), and an
+// anchor transform is a product of up to four of them, whose spread stays below ~5e-7. A real
+// non-uniform scale (an Empty scaled along one axis) is far above it. Snapping changes the map
+// by at most this relative amount, so deformed positions move by about 1e-6 of the mesh size.
+constexpr double kSimilarityTolerance = 1e-6;
+
 struct TransformLog {
   Eigen::Matrix3d log_stretch = Eigen::Matrix3d::Zero();  // symmetric
   Eigen::Vector3d rotation = Eigen::Vector3d::Zero();     // axis * angle, angle in [0, pi]
@@ -41,7 +50,8 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
 Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S);
 Eigen::Matrix3d sym_exp(const Eigen::Matrix3d& L);
 
-// Throws std::invalid_argument as polar_decompose and spd_log do.
+// Throws std::invalid_argument as polar_decompose and spd_log do. M whose singular values agree
+// within kSimilarityTolerance comes back as an exact similarity (similarity = true).
 TransformLog transform_log(const Eigen::Matrix3d& M);
 // Throws std::invalid_argument when the log-stretch is beyond +-kMaxLogStretch (the result
 // would overflow).

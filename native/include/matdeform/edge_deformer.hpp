@@ -1,0 +1,91 @@
+// Edge-based iterative material deformation: edge-length (stretch) and dihedral (bend) terms on
+// mesh edges, pseudo gravity, direction-field anisotropy and live material change, solved by an
+// E-M iteration whose matrix is constant (factored once). See docs/edge.md.
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "matdeform/types.hpp"
+
+namespace matdeform {
+
+struct EdgeDeformerOptions {
+  double stretch = 1e-4;  // lambda >= 0, weight of E_rho (edge vectors, Eq. 6)
+  double bend = 1.0;      // mu > 0, weight of E_sigma (dihedral quantities, Eq. 6)
+  // (E,) > 0 per mesh edge in mesh_edges() order, scaling both terms of the edge; empty: all 1.
+  Eigen::VectorXd edge_weight;
+  // (n,3) direction field f for the anisotropy kappa (Eq. 13-14); empty: isotropic.
+  Vertices direction;
+};
+
+struct EdgeSolveOptions {
+  int iterations = 15;     // >= 1, at most this many E-M iterations
+  double tol = 1e-5;       // >= 0; stop when the largest vertex move <= tol * bbox diagonal
+  double p_stretch = 1.0;  // p_rho in [0,1] (Eq. 15)
+  double p_bend = 1.0;     // p_sigma in [0,1] (Eq. 15)
+  Eigen::Vector3d gravity = Eigen::Vector3d::Zero();  // g, pointing the way things fall (Eq. 8)
+  // omega in (0,1]: each iteration moves the free vertices by omega times the E-M step (1: the
+  // paper). Same fixed points; below 1 it damps the two-cycles the plain iteration can fall into.
+  double relaxation = 1.0;
+};
+
+// min over V: lambda sum_e w_e k_e |rho*_e - (v_i - v_j)|^2
+//           + mu sum_e w_e k_e |sigma*_e - (a v_i + (1-a) v_j - b v_l - (1-b) v_m)|^2
+//           - sum_i <g, v_i>,   constrained vertices fixed,
+// where each iteration takes rho*, sigma* from the previous iterate (rest vectors carried by the
+// edge's rest -> current frame), so every iteration solves the same sparse SPD system.
+//
+// Defined behaviour:
+//  - boundary edges, non-manifold edges (3+ faces), edges whose two faces have the same third
+//    vertex and edges whose rest faces have no usable normal get no sigma term;
+//  - vertices in a connected part (through edges) without a constrained vertex, and vertices in
+//    no face, are passive: they keep their position in `initial` (rest when none is given);
+//  - a system the energy does not determine (e.g. stretch = 0 on a flat part with fewer than
+//    three non-collinear constrained vertices) throws std::invalid_argument.
+// Factors once in the constructor; solve() only assembles right-hand sides and substitutes.
+class EdgeDeformer {
+ public:
+  // vertices (n,3), faces (m,3), constrained: unique vertex indices (non-empty).
+  EdgeDeformer(const Vertices& vertices, const Faces& faces, const std::vector<int>& constrained,
+               const EdgeDeformerOptions& options = {});
+  ~EdgeDeformer();
+  EdgeDeformer(const EdgeDeformer&) = delete;
+  EdgeDeformer& operator=(const EdgeDeformer&) = delete;
+
+  // constrained_positions (|constrained|,3) in the constructor's order; initial: (n,3) warm
+  // start or nullptr (rest). Returns the last iterate (n,3). Concurrent calls take turns.
+  Vertices solve(const Vertices& constrained_positions, const EdgeSolveOptions& options,
+                 const Vertices* initial = nullptr);
+
+  int last_iterations() const { return last_iterations_; }
+  double last_move() const { return last_move_; }  // largest move of the last iteration / diag
+  int factorizations() const { return factorizations_; }  // done by this object
+  // Sparse factorisations done in this process by any solver, so that tests can prove that
+  // solve() never refactors.
+  static long long process_factorizations();
+
+  // Per mesh edge, in mesh_edges() order:
+  const IndexPairs& edges() const { return edges_; }        // (E,2) a < b
+  const IndexPairs& opposite() const { return opposite_; }  // (E,2) l, m; -1 without sigma
+  // (E,2) alpha (weight of edges(e,0)) and beta (weight of opposite(e,0)); NaN without sigma.
+  const RowMatrix& bend_coefficients() const { return coefficients_; }
+  const Eigen::VectorXd& anisotropy() const { return kappa_; }  // (E,) kappa in [0,1]
+  int num_vertices() const { return n_; }
+  int num_free() const;
+  double diagonal() const { return diag_; }
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+  int n_ = 0;
+  IndexPairs edges_, opposite_;
+  RowMatrix coefficients_;
+  Eigen::VectorXd kappa_;
+  double diag_ = 0.0;
+  int factorizations_ = 0;
+  int last_iterations_ = 0;
+  double last_move_ = 0.0;
+};
+
+}  // namespace matdeform

@@ -1,0 +1,710 @@
+#include "matdeform/edge_deformer.hpp"
+
+#include <Eigen/Geometry>
+#include <Eigen/SparseCore>
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <limits>
+#include <mutex>
+#include <numeric>
+#include <stdexcept>
+#include <string>
+
+#include "matdeform/mesh.hpp"
+#include "matdeform/threads.hpp"
+#include "simd.hpp"
+#include "sparse_cholesky.hpp"
+#include "task_pool.hpp"
+
+namespace matdeform {
+
+namespace {
+
+using V3 = Eigen::Vector3d;
+
+// Rest data of one edge as the per-iteration kernels read it. Vertex fields are slots (rows of
+// the position buffers, see Impl); l < 0 means the edge has no sigma term. Stiffness is folded
+// in: c_rho = lambda w kappa, c_sig = mu w kappa.
+struct EdgeTerm {
+  int i, j, l, m;
+  double rest_len;  // |rho_0|
+  double c_rho;
+  double alpha, beta;
+  double c_sig;
+  double s_l, s_n, s_b;  // c_sig * (sigma_0 in the rest frame (l_0, n_0, l_0 x n_0))
+};
+
+// Box-constrained least squares: (x, y) in [0,1]^2 minimising |r + x u + y w|^2, with a tiny
+// pull towards (1/2, 1/2) that picks one minimiser when there are many (parallel projections).
+void box_least_squares(const V3& r, const V3& u, const V3& w, double* x_out, double* y_out) {
+  const double uu = u.squaredNorm(), ww = w.squaredNorm(), uw = u.dot(w);
+  const double ur = u.dot(r), wr = w.dot(r);
+  const double eps = 1e-12 * (uu + ww) + std::numeric_limits<double>::min();
+  const double a = uu + eps, c = ww + eps;
+  auto f = [&](double x, double y) {
+    return (r + x * u + y * w).squaredNorm() +
+           eps * ((x - 0.5) * (x - 0.5) + (y - 0.5) * (y - 0.5));
+  };
+  auto clamp01 = [](double t) { return std::min(1.0, std::max(0.0, t)); };
+  // Unconstrained minimiser of the (strictly convex) regularised quadratic.
+  const double det = a * c - uw * uw;
+  const double gx = -ur + 0.5 * eps, gy = -wr + 0.5 * eps;
+  double x = (c * gx - uw * gy) / det, y = (a * gy - uw * gx) / det;
+  if (!(x >= 0.0 && x <= 1.0 && y >= 0.0 && y <= 1.0)) {
+    // Otherwise the minimum lies on the box boundary: best of the four clamped 1-d minima.
+    double best = std::numeric_limits<double>::infinity();
+    for (int side = 0; side < 4; ++side) {
+      double cx, cy;
+      if (side < 2) {
+        cx = side;
+        cy = clamp01((gy - uw * cx) / c);
+      } else {
+        cy = side - 2;
+        cx = clamp01((gx - uw * cy) / a);
+      }
+      const double v = f(cx, cy);
+      if (v < best) {
+        best = v;
+        x = cx;
+        y = cy;
+      }
+    }
+  }
+  *x_out = x;
+  *y_out = y;
+}
+
+// Twice the area-weighted normal of the edge (i, j) between faces (i, j, l) and (j, i, m), with
+// the orientation taken from the first face only (so inconsistently wound neighbours still add).
+template <class A>
+V3 edge_normal2(const A& xi, const A& xj, const A& xl, const A& xm) {
+  return (xj - xi).cross(xl - xi) + (xi - xj).cross(xm - xj);
+}
+
+int find_root(std::vector<int>& parent, int x) {
+  while (parent[x] != x) x = parent[x] = parent[parent[x]];
+  return x;
+}
+
+// ---- per-iteration kernels (baseline and AVX2+FMA builds, see simd.hpp)
+
+// The kernel's copy of the edge terms: four edges side by side (structure of arrays), so that
+// the square roots and divisions of the estimation step run four edges at a time. Lanes without
+// a bend term have l = m = i and zero bend stiffness; padding lanes have every field zero.
+struct EdgeGroup {
+  int i[4], j[4], l[4], m[4];
+  double rest_len[4], c_rho[4], alpha[4], beta[4], c_sig[4], s_l[4], s_n[4], s_b[4];
+  double r0[3][4];  // rest edge direction, for the collapsed-edge fallback
+};
+
+struct EstimateArgs {
+  const EdgeGroup* groups;
+  const Vec4d* P;  // positions by slot
+  double p_rho, p_sig;
+};
+
+// Four doubles of a group field as a vector (a macro: returning vectors from functions warns about
+// the ABI in the baseline build).
+#define MD_LD4(p) (*reinterpret_cast<const Vec4d*>(p))
+
+// Four (x, y, z, pad) rows -> x, y, z of the four.
+MD_ALWAYS_INLINE void load_soa(const Vec4d* P, const int* idx, Vec4d* x, Vec4d* y, Vec4d* z) {
+  const Vec4d a = P[idx[0]], b = P[idx[1]], c = P[idx[2]], d = P[idx[3]];
+  const Vec4d t0 = MD_UNPACK_EVEN(a, b);  // a0 b0 a2 b2
+  const Vec4d t1 = MD_UNPACK_ODD(a, b);   // a1 b1 a3 b3
+  const Vec4d t2 = MD_UNPACK_EVEN(c, d);
+  const Vec4d t3 = MD_UNPACK_ODD(c, d);
+  *x = MD_LOW_HALVES(t0, t2);
+  *y = MD_LOW_HALVES(t1, t3);
+  *z = MD_HIGH_HALVES(t0, t2);
+}
+
+// Adds (x_k, y_k, z_k, 0) to row idx[k] of Y, k = 0..3 in order (rows may repeat).
+MD_ALWAYS_INLINE void add_aos(const Vec4d& x, const Vec4d& y, const Vec4d& z, const int* idx,
+                              Vec4d* Y) {
+  const Vec4d zero = {0, 0, 0, 0};
+  const Vec4d t0 = MD_UNPACK_EVEN(x, y);     // x0 y0 x2 y2
+  const Vec4d t1 = MD_UNPACK_ODD(x, y);      // x1 y1 x3 y3
+  const Vec4d t2 = MD_UNPACK_EVEN(z, zero);  // z0 0 z2 0
+  const Vec4d t3 = MD_UNPACK_ODD(z, zero);
+  Y[idx[0]] += MD_LOW_HALVES(t0, t2);
+  Y[idx[1]] += MD_LOW_HALVES(t1, t3);
+  Y[idx[2]] += MD_HIGH_HALVES(t0, t2);
+  Y[idx[3]] += MD_HIGH_HALVES(t1, t3);
+}
+
+MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
+  return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+}
+
+// Square root lane by lane; vectorised because this file is built with -fno-math-errno.
+MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
+  *out = Vec4d{std::sqrt(a[0]), std::sqrt(a[1]), std::sqrt(a[2]), std::sqrt(a[3])};
+}
+
+// Estimation step (Eq. 10 with Eq. 15): for each edge the targets
+//   rho* = (1 - p_rho) L_rho(V^k) + p_rho |rho_0| l^k,
+//   sigma* = (1 - p_sig) L_sig(V^k) + p_sig (s_l l^k + s_n n^k + s_b (l^k x n^k)),
+// times the edge's stiffness, with l^k = (x_i - x_j) / |x_i - x_j| and n^k along
+// (x_j - x_i) x (x_i - x_l) + (x_i - x_j) x (x_m - x_j) = (x_j - x_i) x (x_l - x_m), the sum of
+// the two faces' area-weighted normals. A collapsed edge takes its rest direction; an edge
+// whose normal vanishes (faces folded onto each other) gets no bending pull this iteration.
+// The targets go straight into the right-hand side of the measure step (Eq. 11), D^T c target
+// per edge, scattered into Y (rows by slot; rows of fixed vertices are scratch).
+MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d* Y) {
+  for (int g = gb; g < ge; ++g) {
+    const EdgeGroup& t = a.groups[g];
+    Vec4d xi, yi, zi, xj, yj, zj, xl, yl, zl, xm, ym, zm;
+    load_soa(a.P, t.i, &xi, &yi, &zi);
+    load_soa(a.P, t.j, &xj, &yj, &zj);
+    load_soa(a.P, t.l, &xl, &yl, &zl);
+    load_soa(a.P, t.m, &xm, &ym, &zm);
+    const Vec4d one = {1, 1, 1, 1};
+    const Vec4d dx = xi - xj, dy = yi - yj, dz = zi - zj;
+    const Vec4d len2 = dx * dx + dy * dy + dz * dz;
+    const Vec4d rl = MD_LD4(t.rest_len);
+    const Vec4m has_dir = (len2 > 0.0) & (len2 > 1e-24 * rl * rl);
+    Vec4d len;
+    sqrt4(MD_SELECT4(has_dir, len2, one), &len);
+    const Vec4d inv = one / len;
+    const Vec4d lx = MD_SELECT4(has_dir, dx * inv, MD_LD4(t.r0[0]));
+    const Vec4d ly = MD_SELECT4(has_dir, dy * inv, MD_LD4(t.r0[1]));
+    const Vec4d lz = MD_SELECT4(has_dir, dz * inv, MD_LD4(t.r0[2]));
+    const Vec4d cr = MD_LD4(t.c_rho);
+    const Vec4d k1 = cr * (1.0 - a.p_rho), k2 = cr * rl * a.p_rho;
+    const Vec4d tx = k1 * dx + k2 * lx, ty = k1 * dy + k2 * ly, tz = k1 * dz + k2 * lz;
+
+    const Vec4d al = MD_LD4(t.alpha), be = MD_LD4(t.beta);
+    const Vec4d sx = al * xi + (one - al) * xj - be * xl - (one - be) * xm;
+    const Vec4d sy = al * yi + (one - al) * yj - be * yl - (one - be) * ym;
+    const Vec4d sz = al * zi + (one - al) * zj - be * zl - (one - be) * zm;
+    const Vec4d wx = xl - xm, wy = yl - ym, wz = zl - zm;
+    const Vec4d cx = dz * wy - dy * wz, cy = dx * wz - dz * wx, cz = dy * wx - dx * wy;
+    const Vec4d c2 = cx * cx + cy * cy + cz * cz;
+    const Vec4m good = has_dir & (c2 > 1e-24 * len2 * (wx * wx + wy * wy + wz * wz));
+    Vec4d cn;
+    sqrt4(MD_SELECT4(good, c2, one), &cn);
+    const Vec4d ic = one / cn;
+    const Vec4d nx = cx * ic, ny = cy * ic, nz = cz * ic;
+    const Vec4d bx = ly * nz - lz * ny, by = lz * nx - lx * nz, bz = lx * ny - ly * nx;
+    const Vec4d cs = MD_LD4(t.c_sig), sl = MD_LD4(t.s_l), sn = MD_LD4(t.s_n), sb = MD_LD4(t.s_b);
+    const Vec4d k3 = cs * (1.0 - a.p_sig);
+    const Vec4d rx = MD_SELECT4(good, sl * lx + sn * nx + sb * bx, cs * sx);
+    const Vec4d ry = MD_SELECT4(good, sl * ly + sn * ny + sb * by, cs * sy);
+    const Vec4d rz = MD_SELECT4(good, sl * lz + sn * nz + sb * bz, cs * sz);
+    const Vec4d ux = k3 * sx + a.p_sig * rx, uy = k3 * sy + a.p_sig * ry,
+                uz = k3 * sz + a.p_sig * rz;
+    // D_rho^T t = (t, -t) on (i, j); D_sig^T u = (alpha, 1 - alpha, -beta, beta - 1) u.
+    const Vec4d am = one - al, bm = be - one;
+    add_aos(tx + al * ux, ty + al * uy, tz + al * uz, t.i, Y);
+    add_aos(am * ux - tx, am * uy - ty, am * uz - tz, t.j, Y);
+    add_aos(-be * ux, -be * uy, -be * uz, t.l, Y);
+    add_aos(bm * ux, bm * uy, bm * uz, t.m, Y);
+  }
+}
+void estimate_base(const EstimateArgs& a, int b, int e, Vec4d* Y) { estimate_body(a, b, e, Y); }
+MD_TARGET_AVX2 void estimate_avx2(const EstimateArgs& a, int b, int e, Vec4d* Y) {
+  estimate_body(a, b, e, Y);
+}
+
+}  // namespace
+
+struct EdgeDeformer::Impl {
+  int n = 0, nf = 0, nfix = 0, nc = 0;
+  Vertices rest;
+  std::vector<int> slot;          // vertex -> slot: [0, nf) solver rows, then fixed vertices
+  std::vector<int> slot_vertex;   // slot -> vertex
+  std::vector<EdgeGroup> groups;  // edges touching a free vertex, ordered by slot, 4 per group
+  int num_terms = 0;
+  // Free x fixed coupling (CSR by solver row; column = fixed slot - nf).
+  std::vector<int> c_ptr, c_col;
+  std::vector<double> c_val;
+  std::unique_ptr<SparseCholesky> chol;
+
+  // 4 doubles per row (x, y, z, pad), viewed as Vec4d by the kernels: two position buffers by
+  // slot (current and next iterate), the constant right-hand side, and one right-hand-side
+  // accumulator per parallel part of the estimation step (the first is solved in place).
+  std::vector<double> P0, P1, b0;
+  std::vector<std::vector<double>> acc;
+  std::mutex busy;  // solve() calls from several threads (the GIL is released) take turns
+};
+
+EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
+                           const std::vector<int>& constrained, const EdgeDeformerOptions& options)
+    : impl_(std::make_unique<Impl>()) {
+  validate_mesh(vertices, faces);
+  Impl& d = *impl_;
+  const int n = n_ = static_cast<int>(vertices.rows());
+  d.n = n;
+  d.rest = vertices;
+  if (!std::isfinite(options.stretch) || options.stretch < 0.0) {
+    throw std::invalid_argument("stretch: expected a finite value >= 0");
+  }
+  if (!std::isfinite(options.bend) || !(options.bend > 0.0)) {
+    throw std::invalid_argument("bend: expected a finite value > 0");
+  }
+  if (constrained.empty()) throw std::invalid_argument("constrained: expected at least one vertex");
+  std::vector<char> is_fixed(n, 0);
+  for (int v : constrained) {
+    if (v < 0 || v >= n) {
+      throw std::invalid_argument("constrained: vertex " + std::to_string(v) + " outside [0, " +
+                                  std::to_string(n) + ")");
+    }
+    if (is_fixed[v]) {
+      throw std::invalid_argument("constrained: vertex " + std::to_string(v) + " repeated");
+    }
+    is_fixed[v] = 1;
+  }
+  d.nc = static_cast<int>(constrained.size());
+
+  edges_ = mesh_edges(faces);
+  const int E = static_cast<int>(edges_.rows());
+  if (options.edge_weight.size() != 0 && options.edge_weight.size() != E) {
+    throw std::invalid_argument("edge_weight: expected one value per mesh edge (" +
+                                std::to_string(E) + ")");
+  }
+  for (Eigen::Index e = 0; e < options.edge_weight.size(); ++e) {
+    if (!std::isfinite(options.edge_weight(e)) || !(options.edge_weight(e) > 0.0)) {
+      throw std::invalid_argument("edge_weight: expected finite values > 0");
+    }
+  }
+  const bool has_field = options.direction.rows() != 0;
+  if (has_field && options.direction.rows() != n) {
+    throw std::invalid_argument("direction: expected shape (n,3) with n = " + std::to_string(n));
+  }
+  if (has_field && !options.direction.allFinite()) {
+    throw std::invalid_argument("direction: contains NaN or infinity");
+  }
+
+  const V3 lo = vertices.colwise().minCoeff(), hi = vertices.colwise().maxCoeff();
+  diag_ = n > 0 ? (hi - lo).norm() : 0.0;
+  if (!(diag_ > 0.0)) diag_ = 1.0;
+
+  // Interior manifold edges: exactly one face pair shares them.
+  auto edge_index = [&](int a, int b) {
+    int lo_e = 0, hi_e = E;
+    while (lo_e < hi_e) {
+      const int mid = (lo_e + hi_e) / 2;
+      if (edges_(mid, 0) < a || (edges_(mid, 0) == a && edges_(mid, 1) < b)) {
+        lo_e = mid + 1;
+      } else {
+        hi_e = mid;
+      }
+    }
+    return lo_e;
+  };
+  const DualEdges dual = dual_edges(faces);
+  std::vector<int> pair_count(E, 0), pair_of(E, -1);
+  for (Eigen::Index p = 0; p < dual.pairs.rows(); ++p) {
+    const int e = edge_index(dual.shared(p, 0), dual.shared(p, 1));
+    if (e >= E || edges_(e, 0) != dual.shared(p, 0) || edges_(e, 1) != dual.shared(p, 1)) {
+      throw std::logic_error("dual edge without a mesh edge");
+    }
+    ++pair_count[e];
+    pair_of[e] = static_cast<int>(p);
+  }
+
+  // Anisotropy (Eq. 13): kappa from the tangential part of the field (the vertex normal part is
+  // dropped); isotropic (1) where f_i + f_j vanishes.
+  kappa_ = Eigen::VectorXd::Ones(E);
+  if (has_field) {
+    Vertices N = Vertices::Zero(n, 3);
+    for (Eigen::Index f = 0; f < faces.rows(); ++f) {
+      const V3 a = vertices.row(faces(f, 0)), b = vertices.row(faces(f, 1)),
+               c = vertices.row(faces(f, 2));
+      const V3 cr = (b - a).cross(c - a);
+      for (int k = 0; k < 3; ++k) N.row(faces(f, k)) += cr.transpose();
+    }
+    Vertices ft(n, 3);
+    for (int v = 0; v < n; ++v) {
+      V3 fv = options.direction.row(v).transpose();
+      const double nn = N.row(v).norm();
+      if (nn > 0.0) {
+        const V3 u = N.row(v).transpose() / nn;
+        fv -= fv.dot(u) * u;
+      }
+      ft.row(v) = fv.transpose();
+    }
+    for (int e = 0; e < E; ++e) {
+      const int a = edges_(e, 0), b = edges_(e, 1);
+      const V3 s = (ft.row(a) + ft.row(b)).transpose();
+      const V3 r = (vertices.row(a) - vertices.row(b)).transpose();
+      const double scale = ft.row(a).norm() + ft.row(b).norm();
+      const double sn = s.norm(), rn = r.norm();
+      if (sn > 1e-9 * scale && rn > 0.0) kappa_(e) = std::min(1.0, std::abs(s.dot(r)) / (sn * rn));
+    }
+  }
+
+  // Edge terms on the rest mesh (Eq. 4-5).
+  opposite_ = IndexPairs::Constant(E, 2, -1);
+  coefficients_ = RowMatrix::Constant(E, 2, std::numeric_limits<double>::quiet_NaN());
+  std::vector<EdgeTerm> all(E);
+  std::vector<double> all_dir(3 * static_cast<size_t>(E));
+  for (int e = 0; e < E; ++e) {
+    EdgeTerm& t = all[e];
+    const double w = options.edge_weight.size() ? options.edge_weight(e) : 1.0;
+    t.i = edges_(e, 0);
+    t.j = edges_(e, 1);
+    t.l = t.m = -1;
+    t.alpha = t.beta = 0.0;
+    t.c_sig = t.s_l = t.s_n = t.s_b = 0.0;
+    if (pair_count[e] == 1) {
+      const int f = dual.pairs(pair_of[e], 0), g = dual.pairs(pair_of[e], 1);
+      int i = -1, j = -1, l = -1, m = -1;
+      for (int k = 0; k < 3; ++k) {
+        const int a = faces(f, k), b = faces(f, (k + 1) % 3);
+        if (std::min(a, b) == t.i && std::max(a, b) == t.j) {
+          i = a;
+          j = b;
+          l = faces(f, (k + 2) % 3);
+        }
+      }
+      for (int k = 0; k < 3; ++k) {
+        if (faces(g, k) != t.i && faces(g, k) != t.j) m = faces(g, k);
+      }
+      if (i >= 0 && m >= 0 && l != m) {
+        const V3 xi = vertices.row(i), xj = vertices.row(j), xl = vertices.row(l),
+                 xm = vertices.row(m);
+        const V3 c = edge_normal2(xi, xj, xl, xm);
+        const double len2 = (xi - xj).squaredNorm();
+        // the same test as the iteration's (estimate_body): |c| above 1e-12 |x_ij| |x_lm|
+        if (len2 > 0.0 && c.squaredNorm() > 1e-24 * len2 * (xl - xm).squaredNorm()) {
+          const V3 nrm = c.normalized();
+          const V3 ldir = (xi - xj) / std::sqrt(len2);
+          const V3 bdir = ldir.cross(nrm);
+          // sigma = p - q parallel to n: no tangential part, i.e. the projections onto the plane
+          // normal to n meet: P(x_j - x_m) + alpha P(x_i - x_j) - beta P(x_l - x_m) = 0.
+          const Eigen::Matrix3d Pn = Eigen::Matrix3d::Identity() - nrm * nrm.transpose();
+          double alpha, beta;
+          box_least_squares(Pn * (xj - xm), Pn * (xi - xj), -(Pn * (xl - xm)), &alpha, &beta);
+          const V3 sigma = alpha * xi + (1 - alpha) * xj - beta * xl - (1 - beta) * xm;
+          t.i = i;
+          t.j = j;
+          t.l = l;
+          t.m = m;
+          t.alpha = alpha;
+          t.beta = beta;
+          t.c_sig = options.bend * w * kappa_(e);
+          t.s_l = t.c_sig * sigma.dot(ldir);
+          t.s_n = t.c_sig * sigma.dot(nrm);
+          t.s_b = t.c_sig * sigma.dot(bdir);
+          opposite_(e, 0) = l;
+          opposite_(e, 1) = m;
+          coefficients_(e, 0) = i == edges_(e, 0) ? alpha : 1.0 - alpha;
+          coefficients_(e, 1) = beta;
+        }
+      }
+    }
+    const V3 r = (vertices.row(t.i) - vertices.row(t.j)).transpose();
+    const double rl = r.norm();
+    const V3 dir = rl > 0.0 ? V3(r / rl) : V3::Zero();
+    for (int k = 0; k < 3; ++k) all_dir[3 * static_cast<size_t>(e) + k] = dir(k);
+    t.c_rho = options.stretch * w * kappa_(e);
+    t.rest_len = rl;
+  }
+
+  // Passive vertices: in no face, or in a part (through edges) without a constrained vertex.
+  std::vector<int> parent(n);
+  std::iota(parent.begin(), parent.end(), 0);
+  std::vector<char> used(n, 0);
+  for (int e = 0; e < E; ++e) {
+    const int a = find_root(parent, edges_(e, 0)), b = find_root(parent, edges_(e, 1));
+    used[edges_(e, 0)] = used[edges_(e, 1)] = 1;
+    if (a != b) parent[std::max(a, b)] = std::min(a, b);
+  }
+  std::vector<char> root_fixed(n, 0);
+  for (int v : constrained) root_fixed[find_root(parent, v)] = 1;
+  std::vector<int> fixed_list(constrained.begin(), constrained.end());
+  for (int v = 0; v < n; ++v) {
+    if (!is_fixed[v] && (!used[v] || !root_fixed[find_root(parent, v)])) {
+      is_fixed[v] = 1;
+      fixed_list.push_back(v);
+    }
+  }
+  std::vector<int> free_index(n, -1), free_verts;
+  for (int v = 0; v < n; ++v) {
+    if (!is_fixed[v]) {
+      free_index[v] = static_cast<int>(free_verts.size());
+      free_verts.push_back(v);
+    }
+  }
+  const int nf = d.nf = static_cast<int>(free_verts.size());
+  d.nfix = static_cast<int>(fixed_list.size());
+  std::vector<int> fixed_slot(n, -1);
+  for (size_t s = 0; s < fixed_list.size(); ++s) fixed_slot[fixed_list[s]] = static_cast<int>(s);
+
+  // Normal equations (the same matrix for x, y and z): sum_e c_e D_e^T D_e over the stretch
+  // stencils (1, -1 on i, j) and the bend stencils (alpha, 1 - alpha, -beta, beta - 1).
+  std::vector<Eigen::Triplet<double>> aff, afc;
+  aff.reserve(static_cast<size_t>(20) * E);
+  auto add_stencil = [&](const int* v, const double* c, int k, double weight) {
+    for (int r = 0; r < k; ++r) {
+      const int fr = free_index[v[r]];
+      if (fr < 0) continue;
+      for (int s = 0; s < k; ++s) {
+        const double val = weight * c[r] * c[s];
+        const int fs = free_index[v[s]];
+        if (fs >= 0) {
+          if (fs <= fr) aff.emplace_back(fr, fs, val);
+        } else {
+          afc.emplace_back(fr, fixed_slot[v[s]], val);
+        }
+      }
+    }
+  };
+  for (const EdgeTerm& t : all) {
+    const int rv[2] = {t.i, t.j};
+    const double rc[2] = {1.0, -1.0};
+    if (t.c_rho > 0.0) add_stencil(rv, rc, 2, t.c_rho);
+    if (t.l >= 0) {
+      const int sv[4] = {t.i, t.j, t.l, t.m};
+      const double sc[4] = {t.alpha, 1.0 - t.alpha, -t.beta, t.beta - 1.0};
+      add_stencil(sv, sc, 4, t.c_sig);
+    }
+  }
+  Eigen::SparseMatrix<double> Aff(nf, nf);
+  Aff.setFromTriplets(aff.begin(), aff.end());
+  const char* singular =
+      "the constraints do not determine every vertex (singular system): with stretch = 0 each "
+      "flat part needs three constrained vertices that are not in a line";
+  try {
+    d.chol = std::make_unique<SparseCholesky>(Aff, SparseCholesky::Reuse::PerPose);
+  } catch (const std::exception&) {
+    // Aff is finite (checked above), so a failed factorisation means it is not positive
+    // definite: some vertex is not determined (invalid_argument), or CHOLMOD gave up
+    // (runtime_error).
+    throw std::invalid_argument(singular);
+  }
+  if (nf > 0) ++factorizations_;
+
+  // Slots: solver row order first, then fixed vertices (constrained in the caller's order).
+  const std::vector<int>& perm = d.chol->permutation();  // row r is free vertex perm[r]
+  std::vector<int> free_row(nf);
+  for (int r = 0; r < nf; ++r) free_row[perm[r]] = r;
+  d.slot.assign(n, -1);
+  d.slot_vertex.assign(n, -1);
+  for (int f = 0; f < nf; ++f) d.slot[free_verts[f]] = free_row[f];
+  for (size_t s = 0; s < fixed_list.size(); ++s) d.slot[fixed_list[s]] = nf + static_cast<int>(s);
+  for (int v = 0; v < n; ++v) d.slot_vertex[d.slot[v]] = v;
+
+  // A nearly singular system is not always caught by the factorisation (rounding can leave a
+  // tiny positive pivot): solve A x = A r for a fixed r and require x = r.
+  if (nf > 0) {
+    Eigen::MatrixXd R(nf, 3);
+    for (int f = 0; f < nf; ++f)
+      for (int k = 0; k < 3; ++k) R(f, k) = std::sin(1.0 + 0.7 * f + 2.1 * k);
+    const Eigen::SparseMatrix<double> Afull = Aff.selfadjointView<Eigen::Lower>();
+    const Eigen::MatrixXd B = Afull * R;
+    std::vector<double> Y(4 * static_cast<size_t>(nf), 0.0);
+    for (int f = 0; f < nf; ++f)
+      for (int k = 0; k < 3; ++k) Y[4 * static_cast<size_t>(free_row[f]) + k] = B(f, k);
+    d.chol->solve_permuted4(Y.data());
+    double err = 0.0;
+    for (int f = 0; f < nf; ++f)
+      for (int k = 0; k < 3; ++k)
+        err = std::max(err, std::abs(Y[4 * static_cast<size_t>(free_row[f]) + k] - R(f, k)));
+    if (!(err < 1e-4)) throw std::invalid_argument(singular);
+  }
+
+  // Coupling to fixed vertices, by solver row.
+  {
+    Eigen::SparseMatrix<double, Eigen::RowMajor> Afc(nf, d.nfix);
+    Afc.setFromTriplets(afc.begin(), afc.end());
+    d.c_ptr.assign(nf + 1, 0);
+    for (int r = 0; r < nf; ++r) {
+      const int f = perm[r];
+      d.c_ptr[r + 1] =
+          d.c_ptr[r] + static_cast<int>(Afc.outerIndexPtr()[f + 1] - Afc.outerIndexPtr()[f]);
+    }
+    d.c_col.resize(d.c_ptr[nf]);
+    d.c_val.resize(d.c_ptr[nf]);
+    for (int r = 0; r < nf; ++r) {
+      const int f = perm[r];
+      int o = d.c_ptr[r];
+      for (auto q = Afc.outerIndexPtr()[f]; q < Afc.outerIndexPtr()[f + 1]; ++q, ++o) {
+        d.c_col[o] = Afc.innerIndexPtr()[q];
+        d.c_val[o] = Afc.valuePtr()[q];
+      }
+    }
+  }
+
+  // Terms that reach a free vertex, in slot order of their first vertex (the estimation step
+  // then walks the position buffer roughly in order), with vertices turned into slots.
+  std::vector<int> keep;
+  for (int e = 0; e < E; ++e) {
+    const EdgeTerm& t = all[e];
+    bool reaches = (t.c_rho > 0.0) && (!is_fixed[t.i] || !is_fixed[t.j]);
+    if (t.l >= 0)
+      reaches = reaches || !is_fixed[t.i] || !is_fixed[t.j] || !is_fixed[t.l] || !is_fixed[t.m];
+    if (reaches) keep.push_back(e);
+  }
+  auto key = [&](int e) { return std::min(d.slot[all[e].i], d.slot[all[e].j]); };
+  std::stable_sort(keep.begin(), keep.end(), [&](int a, int b) { return key(a) < key(b); });
+  std::vector<EdgeTerm> terms(keep.size());
+  for (size_t q = 0; q < keep.size(); ++q) {
+    EdgeTerm t = all[keep[q]];
+    t.i = d.slot[t.i];
+    t.j = d.slot[t.j];
+    if (t.l >= 0) {
+      t.l = d.slot[t.l];
+      t.m = d.slot[t.m];
+    }
+    terms[q] = t;
+  }
+  d.num_terms = static_cast<int>(terms.size());
+  d.groups.assign((terms.size() + 3) / 4, EdgeGroup{});
+  for (size_t q = 0; q < terms.size(); ++q) {
+    EdgeGroup& g = d.groups[q / 4];
+    const size_t k = q % 4;
+    const EdgeTerm& t = terms[q];
+    g.i[k] = t.i;
+    g.j[k] = t.j;
+    g.l[k] = t.l >= 0 ? t.l : t.i;
+    g.m[k] = t.l >= 0 ? t.m : t.i;
+    g.rest_len[k] = t.rest_len;
+    g.c_rho[k] = t.c_rho;
+    g.alpha[k] = t.alpha;
+    g.beta[k] = t.beta;
+    g.c_sig[k] = t.c_sig;
+    g.s_l[k] = t.s_l;
+    g.s_n[k] = t.s_n;
+    g.s_b[k] = t.s_b;
+    for (int c = 0; c < 3; ++c) g.r0[c][k] = all_dir[3 * static_cast<size_t>(keep[q]) + c];
+  }
+
+  const size_t rows = static_cast<size_t>(nf) + d.nfix;
+  d.P0.assign(4 * rows, 0.0);
+  d.P1.assign(4 * rows, 0.0);
+  d.b0.assign(4 * static_cast<size_t>(nf), 0.0);
+}
+
+EdgeDeformer::~EdgeDeformer() = default;
+
+int EdgeDeformer::num_free() const { return impl_->nf; }
+
+long long EdgeDeformer::process_factorizations() { return SparseCholesky::factorizations(); }
+
+Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSolveOptions& options,
+                             const Vertices* initial) {
+  Impl& d = *impl_;
+  if (constrained_positions.rows() != d.nc) {
+    throw std::invalid_argument("constrained_positions: expected shape (" + std::to_string(d.nc) +
+                                ",3)");
+  }
+  if (!constrained_positions.allFinite()) {
+    throw std::invalid_argument("constrained_positions: contains NaN or infinity");
+  }
+  if (initial && (initial->rows() != d.n || !initial->allFinite())) {
+    throw std::invalid_argument("initial: expected finite values of shape (" + std::to_string(d.n) +
+                                ",3)");
+  }
+  if (options.iterations < 1) throw std::invalid_argument("iterations: expected >= 1");
+  if (!std::isfinite(options.tol) || options.tol < 0.0) {
+    throw std::invalid_argument("tol: expected a finite value >= 0");
+  }
+  if (!(options.p_stretch >= 0.0 && options.p_stretch <= 1.0)) {
+    throw std::invalid_argument("p_stretch: expected a value in [0, 1]");
+  }
+  if (!(options.p_bend >= 0.0 && options.p_bend <= 1.0)) {
+    throw std::invalid_argument("p_bend: expected a value in [0, 1]");
+  }
+  if (!(options.relaxation > 0.0 && options.relaxation <= 1.0)) {
+    throw std::invalid_argument("relaxation: expected a value in (0, 1]");
+  }
+  if (!options.gravity.allFinite())
+    throw std::invalid_argument("gravity: contains NaN or infinity");
+
+  const std::lock_guard<std::mutex> lock(d.busy);
+  const ParkWorkersOnExit park;
+  const int nf = d.nf;
+  const Vertices& X0 = initial ? *initial : d.rest;
+  Vec4d* cur = reinterpret_cast<Vec4d*>(d.P0.data());
+  Vec4d* next = reinterpret_cast<Vec4d*>(d.P1.data());
+  Vec4d* b0 = reinterpret_cast<Vec4d*>(d.b0.data());
+  for (int v = 0; v < d.n; ++v) {
+    cur[d.slot[v]] = Vec4d{X0(v, 0), X0(v, 1), X0(v, 2), 0.0};
+  }
+  double move0 = 0.0;  // constrained vertices jump to their targets in the first iteration
+  for (int c = 0; c < d.nc; ++c) {
+    const Vec4d p = {constrained_positions(c, 0), constrained_positions(c, 1),
+                     constrained_positions(c, 2), 0.0};
+    next[nf + c] = p;
+    const Vec4d dv = p - cur[nf + c];
+    move0 = std::max(move0, dot3(dv, dv));
+  }
+  for (int s = nf + d.nc; s < nf + d.nfix; ++s) next[s] = cur[s];
+
+  // Constant part of the right-hand side: -A_fc x_fixed + g/2 (Eq. 9 with E_g = -sum <g, v>).
+  const Vec4d g2 = {0.5 * options.gravity(0), 0.5 * options.gravity(1), 0.5 * options.gravity(2),
+                    0.0};
+  for (int r = 0; r < nf; ++r) {
+    Vec4d b = g2;
+    for (int q = d.c_ptr[r]; q < d.c_ptr[r + 1]; ++q) b -= d.c_val[q] * next[nf + d.c_col[q]];
+    b[3] = 0.0;
+    b0[r] = b;
+  }
+
+  const bool avx2 = cpu_has_avx2_fma();
+  const int ng = static_cast<int>(d.groups.size());
+  // Parallel parts of the estimation step, each scattering into its own accumulator. Below
+  // ~8k edges per part the split costs more than it saves.
+  constexpr int kMinGroups = 2048, kMaxParts = 8;
+  const int parts = std::max(1, std::min({num_threads(), ng / kMinGroups, kMaxParts}));
+  const size_t rows = static_cast<size_t>(nf) + d.nfix;
+  if (static_cast<int>(d.acc.size()) < parts) d.acc.resize(parts);
+  for (int p = 0; p < parts; ++p) d.acc[p].resize(4 * rows);
+  Vec4d* Y = reinterpret_cast<Vec4d*>(d.acc[0].data());
+  const double stop = options.tol * diag_;
+  int it = 0;
+  double move = 0.0;
+  while (it < options.iterations) {
+    const EstimateArgs ea{d.groups.data(), cur, options.p_stretch, options.p_bend};
+    run_tasks(parts, [&](int p) {
+      Vec4d* acc = reinterpret_cast<Vec4d*>(d.acc[p].data());
+      if (p == 0) {
+        std::copy(d.b0.begin(), d.b0.end(), d.acc[0].begin());
+      } else {
+        std::fill(d.acc[p].begin(), d.acc[p].begin() + 4 * static_cast<size_t>(nf), 0.0);
+      }
+      const int b = static_cast<int>(static_cast<int64_t>(ng) * p / parts);
+      const int e = static_cast<int>(static_cast<int64_t>(ng) * (p + 1) / parts);
+      (avx2 ? estimate_avx2 : estimate_base)(ea, b, e, acc);
+    });
+    if (parts > 1) {
+      parallel_ranges(nf, 4096, 8, [&](int b, int e) {
+        for (int p = 1; p < parts; ++p) {
+          const Vec4d* acc = reinterpret_cast<const Vec4d*>(d.acc[p].data());
+          for (int r = b; r < e; ++r) Y[r] += acc[r];
+        }
+      });
+    }
+    d.chol->solve_permuted4(reinterpret_cast<double*>(Y));
+    double m2 = 0.0;
+    const double w = options.relaxation;
+    for (int r = 0; r < nf; ++r) {
+      const Vec4d dv = Y[r] - cur[r];
+      m2 = std::max(m2, dot3(dv, dv));
+      next[r] = w == 1.0 ? Y[r] : cur[r] + w * dv;
+    }
+    move = std::sqrt(std::max(w * w * m2, it == 0 ? move0 : 0.0));
+    if (it == 0) {
+      // From now on both buffers hold the constrained positions.
+      for (int c = 0; c < d.nc; ++c) cur[nf + c] = next[nf + c];
+    }
+    std::swap(cur, next);
+    ++it;
+    if (move < stop) break;
+  }
+  last_iterations_ = it;
+  last_move_ = move / diag_;
+
+  Vertices out(d.n, 3);
+  for (int v = 0; v < d.n; ++v) {
+    const Vec4d& p = cur[d.slot[v]];
+    out.row(v) << p[0], p[1], p[2];
+  }
+  return out;
+}
+
+}  // namespace matdeform

@@ -1,0 +1,398 @@
+"""PoseSpaceDeformer: reference solve, example reproduction, weight criteria, invariances."""
+
+import numpy as np
+import pytest
+from conftest import rotation
+from reference_pose_space import Reference
+
+import matdeform as md
+from matdeform import shapes
+
+
+def bar(nx=8, length=8.0):
+    """Closed box-section bar along x: rings of 4 vertices, capped; 8 nx + 4 faces."""
+    ring = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    v = np.array([[length * i / nx, *ring[j]] for i in range(nx + 1) for j in range(4)])
+    f = []
+    for i in range(nx):
+        for j in range(4):
+            a, b = 4 * i + j, 4 * i + (j + 1) % 4
+            f += [[a, b, b + 4], [a, b + 4, a + 4]]
+    o = 4 * nx
+    f += [[0, 2, 1], [0, 3, 2], [o, o + 1, o + 2], [o, o + 2, o + 3]]
+    return v, np.array(f)
+
+
+def rings(a, b):
+    return np.arange(4 * a, 4 * b + 4)
+
+
+def bent(v, angle, length, plane=(0, 1)):
+    """Bend into an arc of total turn `angle` in the given coordinate plane, x = 0 kept."""
+    out = v.copy()
+    i, j = plane
+    rho = length / angle
+    a = v[:, i] / rho
+    rr = rho - v[:, j]
+    out[:, i], out[:, j] = rr * np.sin(a), rho - rr * np.cos(a)
+    return out
+
+
+def twisted(v, angle, length, x0=0.0):
+    t = angle * np.clip(v[:, 0] - x0, 0, None) / (length - x0)
+    out = v.copy()
+    out[:, 1] = np.cos(t) * v[:, 1] - np.sin(t) * v[:, 2]
+    out[:, 2] = np.sin(t) * v[:, 1] + np.cos(t) * v[:, 2]
+    return out
+
+
+def bulged(v, amount, length):
+    s = 1 + amount * np.exp(-(((v[:, 0] - 0.5 * length) / (0.15 * length)) ** 2))
+    out = v.copy()
+    out[:, 1:] *= s[:, None]
+    return out
+
+
+def diag(v):
+    return float(np.linalg.norm(v.max(0) - v.min(0)))
+
+
+@pytest.fixture
+def scene():
+    """Bar with three handles (ends and middle) and three examples: two bends, a bulged bend."""
+    v, f = bar()
+    L = 8.0
+    ex = np.stack([bent(v, 1.0, L), bent(v, -0.8, L, (0, 2)), bulged(bent(v, 0.6, L), 0.4, L)])
+    handles = [rings(0, 1), rings(4, 4), rings(7, 8)]
+    return v, f, ex, handles
+
+
+def handle_positions(x, handles):
+    return [x[h] for h in handles]
+
+
+def in_between(ex, handles, seed=0):
+    rng = np.random.default_rng(seed)
+    w = np.array([0.5, 0.3, 0.2])
+    x = np.einsum("k,kvc->vc", w, ex)
+    hp = handle_positions(x, handles)
+    return [p + rng.normal(scale=0.05, size=p.shape) for p in hp]
+
+
+# ------------------------------------------------------------------------------ reference
+
+
+@pytest.mark.parametrize("handle_rotations", [True, False])
+def test_matches_dense_reference(scene, handle_rotations):
+    v, f, ex, handles = scene
+    kw = dict(
+        rotation_iterations=500,
+        gauge_steps=100,
+        rotation_tolerance=1e-12,
+        handle_rotations=handle_rotations,
+    )
+    d = md.PoseSpaceDeformer(v, f, ex, handles, **kw)
+    hp = in_between(ex, handles)
+    X = d.deform(hp)
+    ref = Reference(v, f, ex, handles)
+    if not handle_rotations:
+        ref.handle_faces = []
+    np.testing.assert_allclose(d.example_weights, ref.weights(hp), atol=1e-12)
+    assert np.abs(X - ref.deform(hp)).max() < 1e-7 * diag(v)
+    # Not a trivial case: the blend is not one example and the handles are not all met.
+    assert 0.05 < np.abs(X - ex[0]).max()
+
+
+def test_matches_dense_reference_with_joint_and_no_examples():
+    v, f = bar()
+    handles = [rings(0, 1), rings(7, 8)]
+    pair = [(3, len(f) - 12)]
+    G = rotation([0, 1, 1], 0.6)[None]
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
+    d = md.PoseSpaceDeformer(v, f, [], handles, rotational=pair, **kw)
+    rng = np.random.default_rng(3)
+    hp = [v[h] + rng.normal(scale=0.05, size=(len(h), 3)) for h in handles]
+    X = d.deform(hp, rotations=G)
+    ref = Reference(v, f, [], handles, rotational=pair)
+    assert np.abs(X - ref.deform(hp, list(G))).max() < 1e-7 * diag(v)
+    assert d.example_weights.shape == (0,)
+
+
+# ------------------------------------------------------------------------------ examples
+
+
+def test_handles_at_an_example_give_that_example(scene):
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles)
+    for k in range(len(ex)):
+        G = rotation([1, 2, 3], 0.5 + k)
+        target = ex[k] @ G.T + [1.0, -2.0, 3.0]
+        X = d.deform(handle_positions(target, handles))
+        assert np.abs(X - target).max() < 1e-6 * diag(v)
+        np.testing.assert_allclose(d.example_weights, np.eye(len(ex))[k], atol=1e-12)
+
+
+def test_no_examples_rigid_handles_give_rigid_rest(scene):
+    v, f, _, handles = scene
+    d = md.PoseSpaceDeformer(v, f, np.zeros((0, len(v), 3)), handles)
+    G = rotation([-1, 0.3, 2], 2.5)
+    target = v @ G.T + [3.0, 1.0, -2.0]
+    X = d.deform(handle_positions(target, handles))
+    assert np.abs(X - target).max() < 1e-9 * diag(v)
+
+
+def test_twist_of_270_degrees_interpolates_without_flip():
+    v, f = bar(nx=40, length=10.0)
+    x0 = 10.0 / 40
+    tw = twisted(v, 1.5 * np.pi, 10.0, x0)
+    half = twisted(v, 0.75 * np.pi, 10.0, x0)
+    handles = [rings(0, 1), np.array([4 * 40])]  # a ring's centre does not see a twist
+    d = md.PoseSpaceDeformer(v, f, [v, tw], handles, frame=0)
+    X = d.deform(handle_positions(half, handles))
+    np.testing.assert_allclose(d.example_weights, [0.5, 0.5], atol=1e-9)
+    e = X[4 * np.arange(41) + 1] - X[4 * np.arange(41)]
+    ang = np.unwrap(np.arctan2(e[:, 2], e[:, 1]))
+    assert (np.diff(ang[1:]) > 0).all()  # monotone: the long way round, no flip
+    assert abs(ang[-1] - ang[1] - 0.75 * np.pi) < 0.05
+    assert (np.linalg.det(md.deformation_gradients(v, X, f)) > 0.5).all()
+
+
+# ------------------------------------------------------------------------------ weights
+
+
+def test_weights_one_zero_at_examples_sum_one_continuous_small(scene):
+    v, f, ex, handles = scene
+    ex4 = np.concatenate([ex, [v]])
+    d = md.PoseSpaceDeformer(v, f, ex4, handles)
+    # 1 at its own example, 0 at the others
+    for k in range(len(ex4)):
+        w = d.pose_weights(handle_positions(ex4[k], handles))
+        np.testing.assert_allclose(w, np.eye(len(ex4))[k], atol=1e-12)
+    # continuous along a path example 0 -> example 1 and twice as far beyond
+    path = np.linspace(0, 2, 401)
+    W = np.array(
+        [d.pose_weights(handle_positions((1 - t) * ex4[0] + t * ex4[1], handles)) for t in path]
+    )
+    np.testing.assert_allclose(W.sum(1), 1.0, atol=1e-12)
+    assert np.abs(np.diff(W, axis=0)).max() < 0.03  # steps of 1/200 of the path
+    np.testing.assert_allclose(W[200], np.eye(4)[1], atol=1e-12)
+    # small: bounded along the path and far away in random directions
+    rng = np.random.default_rng(5)
+    far = []
+    for _ in range(50):
+        hp = [p + rng.normal(scale=5.0, size=3) for p in handle_positions(v, handles)]
+        far.append(d.pose_weights(hp))
+    far = np.array(far)
+    np.testing.assert_allclose(far.sum(1), 1.0, atol=1e-10)
+    assert np.abs(W).max() < 1.5
+    assert np.abs(far).max() < 3.0
+
+
+def test_convex_weights_and_regularisation(scene):
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles, convex_weights=True)
+    rng = np.random.default_rng(2)
+    for _ in range(30):
+        hp = [p + rng.normal(scale=1.0, size=3) for p in handle_positions(v, handles)]
+        w = d.pose_weights(hp)
+        assert w.min() >= 0.0 and abs(w.sum() - 1) < 1e-12
+    np.testing.assert_allclose(
+        d.pose_weights(handle_positions(ex[1], handles)), [0, 1, 0], atol=1e-12
+    )
+    # a ridge relaxes the exact interpolation (criterion 1) but keeps the partition of unity
+    r = md.PoseSpaceDeformer(v, f, ex, handles, weight_regularization=0.1)
+    w = r.pose_weights(handle_positions(ex[1], handles))
+    assert abs(w.sum() - 1) < 1e-12 and 0.5 < w[1] < 1 - 1e-3 and w.min() > -1e-3
+
+
+# ------------------------------------------------------------------------------ options
+
+
+def test_multiresolution_against_single_resolution():
+    v, f = shapes.tube(length=12.0, radius=1.0, n_around=16, n_along=48)
+    L = 12.0
+    ex = np.stack([v, bent(v, 1.2, L), bent(v, -1.0, L, (0, 2)), bulged(bent(v, 0.5, L), 0.4, L)])
+    x = v[:, 0]
+    handles = [
+        np.flatnonzero(x <= 0.3),
+        np.flatnonzero(np.abs(x - 6.0) < 0.2),
+        np.flatnonzero(x >= 11.7),
+    ]
+    single = md.PoseSpaceDeformer(v, f, ex, handles)
+    multi = md.PoseSpaceDeformer(v, f, ex, handles, coarse=300)
+    assert multi.multiresolution and len(multi.coarse_faces) <= 330 < len(f)
+    # both reproduce an example (every example's details are stored)
+    X = multi.deform(handle_positions(ex[2], handles))
+    assert np.abs(X - ex[2]).max() < 1e-6 * diag(v)
+    # and agree between examples (handles on a smaller bend: a blend of several examples); the
+    # coarse mesh has fewer degrees of freedom near the handles, so they differ by ~1 % of the
+    # diagonal, a tenth of the motion
+    hp = handle_positions(bent(v, 0.6, L), handles)
+    Xs, Xm = single.deform(hp), multi.deform(hp)
+    np.testing.assert_allclose(single.example_weights, multi.example_weights, atol=1e-12)
+    assert np.sort(single.example_weights)[-2] > 0.1
+    rms = np.sqrt(((Xs - Xm) ** 2).sum(1).mean())
+    motion = np.sqrt(((Xs - v) ** 2).sum(1).mean())
+    assert rms < 0.015 * diag(v) and rms < 0.1 * motion
+
+
+def test_frozen_faces_stay_at_rest(scene):
+    v, f, _, _ = scene
+    L = 8.0
+    ex = bent(v - [2.0, 0, 0], 1.0, L - 2.0) + [2.0, 0, 0]
+    ex[v[:, 0] <= 2.0] = v[v[:, 0] <= 2.0]  # the bend starts at x = 2
+    frozen = np.arange(16)  # the first two segments
+    handles = [rings(7, 8)]
+    d = md.PoseSpaceDeformer(v, f, [v, ex], handles, frozen=frozen)
+    X = d.deform(handle_positions(0.5 * (v + ex), handles))
+    fv = np.unique(f[frozen])
+    assert (X[fv] == v[fv]).all()
+    X = d.deform(handle_positions(ex, handles))
+    assert np.abs(X - ex).max() < 1e-6 * diag(v)
+
+
+def test_relabelling_permutes_the_result(scene):
+    v, f, ex, handles = scene
+    pair = [(5, len(f) - 20)]
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
+    d = md.PoseSpaceDeformer(v, f, ex, handles, rotational=pair, **kw)
+    rng = np.random.default_rng(11)
+    vp, fp = rng.permutation(len(v)), rng.permutation(len(f))  # new -> old
+    vinv, finv = np.argsort(vp), np.argsort(fp)
+    d2 = md.PoseSpaceDeformer(
+        v[vp],
+        vinv[f[fp]],
+        ex[:, vp],
+        [vinv[h] for h in handles],
+        rotational=[(finv[a], finv[b]) for a, b in pair],
+        **kw,
+    )
+    hp = in_between(ex, handles)
+    G = rotation([0, 1, 1], 0.4)[None]
+    X, X2 = d.deform(hp, G), d2.deform(hp, G)
+    assert np.abs(X[vp] - X2).max() < 1e-9 * diag(v)
+    np.testing.assert_allclose(d.example_weights, d2.example_weights, atol=1e-12)
+
+
+def test_frame_transform_moves_the_whole_model(scene):
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles, frame=2)
+    G, t = rotation([0, 1, 1], 1.1), np.array([0.5, 0.5, 2.0])
+    target = ex[0] @ G.T + t
+    Tf = md.deformation_gradients(v, target, f)[2]
+    _, Rf = md.polar_decompose(Tf)  # the rotation factor of either polar decomposition
+    c = lambda x: x[f[2]].mean(0)  # noqa: E731
+    M = np.eye(4)
+    M[:3, :3], M[:3, 3] = Rf, c(target) - Rf @ c(v)
+    X = d.deform(handle_positions(target, handles), frame_transform=M)
+    assert np.abs(X - target).max() < 1e-6 * diag(v)
+
+
+# ------------------------------------------------------------------------------ bad input
+
+
+def test_bad_input_names_the_argument(scene):
+    v, f, ex, handles = scene
+    P = md.PoseSpaceDeformer
+    with pytest.raises(ValueError, match=r"examples: expected shape \(p,"):
+        P(v, f, ex[:, :10], handles)
+    bad = ex.copy()
+    bad[1, 3, 0] = np.nan
+    with pytest.raises(ValueError, match=r"examples\[1\]: contains NaN"):
+        P(v, f, bad, handles)
+    with pytest.raises(ValueError, match=r"handles\[1\]: indices must lie in"):
+        P(v, f, ex, [handles[0], [len(v)]])
+    with pytest.raises(ValueError, match=r"handles\[0\]: indices must lie in"):
+        P(v, f, ex, [[-1, 2, 3]])
+    with pytest.raises(ValueError, match=r"handles\[0\]: indices must be unique"):
+        P(v, f, ex, [[1, 1, 2]])
+    with pytest.raises(ValueError, match="handles: handles 0 and 1 share vertex"):
+        P(v, f, ex, [handles[0], handles[0][:2]])
+    with pytest.raises(ValueError, match=r"handles\[1\]: a handle needs at least one vertex"):
+        P(v, f, ex, [handles[0], []])
+    with pytest.raises(ValueError, match="frame: expected a face index"):
+        P(v, f, ex, handles, frame=len(f))
+    with pytest.raises(ValueError, match="frame: expected an int"):
+        P(v, f, ex, handles, frame=1.5)
+    with pytest.raises(ValueError, match=r"rotational\[0\]: the two faces must differ"):
+        P(v, f, ex, handles, rotational=[(3, 3)])
+    with pytest.raises(ValueError, match="rotational: face indices must lie in"):
+        P(v, f, ex, handles, rotational=[(3, len(f))])
+    with pytest.raises(ValueError, match=r"rotational: expected \(face_a, face_b\) pairs"):
+        P(v, f, ex, handles, rotational=[(1, 2, 3)])
+    with pytest.raises(ValueError, match="coarse: expected a face count"):
+        P(v, f, ex, handles, coarse=len(f))
+    with pytest.raises(ValueError, match="frozen: indices must be unique"):
+        P(v, f, ex, handles, frozen=[0, 0])
+    with pytest.raises(ValueError, match=r"handles\[0\]: vertex \d+ belongs to a frozen face"):
+        P(v, f, ex, handles, frozen=[0])
+    with pytest.raises(ValueError, match="position_weight: expected a finite value > 0"):
+        P(v, f, ex, handles, position_weight=0.0)
+    with pytest.raises(ValueError, match="rotation_energy: expected"):
+        P(v, f, ex, handles, rotation_energy="exact")
+    with pytest.raises(ValueError, match="have the same pose"):
+        P(v, f, np.stack([ex[0], ex[0]]), handles)
+    with pytest.raises(ValueError, match="disconnected parts"):
+        P(np.vstack([v, v + 5]), np.vstack([f, f + len(v)]), [], [handles[0]])
+    with pytest.raises(ValueError, match="not used by any face"):
+        P(np.vstack([v, [[9.0, 9, 9]]]), f, [], [handles[0]])
+    with pytest.raises(ValueError, match="faces: face 1 repeats a vertex"):
+        P(v, np.vstack([f[:1], [4, 4, 5], f[2:]]), [], [handles[0]])
+    d = P(v, f, ex, handles)
+    hp = handle_positions(v, handles)
+    with pytest.raises(ValueError, match="handle_positions: expected 3 arrays, got 2"):
+        d.deform(hp[:2])
+    with pytest.raises(ValueError, match=r"handle_positions\[1\]: expected shape \(4,3\)"):
+        d.deform([hp[0], hp[1][:2], hp[2]])
+    nanp = [p.copy() for p in hp]
+    nanp[2][0, 1] = np.inf
+    with pytest.raises(ValueError, match=r"handle_positions\[2\]: contains NaN"):
+        d.deform(nanp)
+    with pytest.raises(ValueError, match="rotations: given, but the deformer has no rotational"):
+        d.deform(hp, rotations=np.eye(3)[None])
+    with pytest.raises(ValueError, match="frame_transform: given, but the deformer has no frame"):
+        d.deform(hp, frame_transform=np.eye(4))
+    j = P(v, f, ex, handles, rotational=[(3, 40)], frame=2)
+    with pytest.raises(ValueError, match=r"rotations: expected shape \(1,3,3\)"):
+        j.deform(hp, rotations=np.eye(3))
+    with pytest.raises(ValueError, match=r"rotations\[0\]: expected a rotation matrix"):
+        j.deform(hp, rotations=2 * np.eye(3)[None])
+    with pytest.raises(ValueError, match="frame_transform: expected a rigid transform"):
+        j.deform(hp, frame_transform=np.diag([2.0, 1, 1, 1]))
+    # nothing changed: the deformer still works
+    X = d.deform(handle_positions(ex[0], handles))
+    assert np.abs(X - ex[0]).max() < 1e-6 * diag(v)
+
+
+def test_core_rechecks_indices(scene):
+    """The bindings skip the Python checks; the core must still refuse, never crash."""
+    v, f, ex, handles = scene
+    core = md._core.PoseSpaceDeformer
+    args = dict(
+        frame=None,
+        rotational=[],
+        coarse=None,
+        frozen=[],
+        position_weight=100.0,
+        rotation_weight=1.0,
+        joint_weight=100.0,
+        handle_rotations=True,
+        weight_regularization=0.0,
+        convex_weights=False,
+        transfer_neighbors=8,
+    )
+    with pytest.raises(ValueError, match="outside"):
+        core(v, f.astype(np.int32), list(ex), [[0, 1, len(v) + 7]], **args)
+    with pytest.raises(ValueError, match="frame"):
+        core(v, f.astype(np.int32), list(ex), [list(h) for h in handles], **{**args, "frame": -2})
+    with pytest.raises(ValueError, match="frozen"):
+        core(
+            v,
+            f.astype(np.int32),
+            list(ex),
+            [list(h) for h in handles],
+            **{**args, "frozen": [10**6]},
+        )
+    d = core(v, f.astype(np.int32), list(ex), [list(h) for h in handles], **args)
+    with pytest.raises(ValueError, match="handle_positions"):
+        d.deform([v[:2]])
