@@ -66,7 +66,7 @@ def bar():
 def bend_in_plane(v, angle, plane_angle, length):
     """Bend a tube along x into an arc of total turn `angle` in the plane through x at
     `plane_angle` about x (0: the xy plane), keeping x = 0 in place."""
-    R = rot([1, 0, 0], plane_angle)
+    R = md.transform_exp(np.zeros((3, 3)), [plane_angle, 0.0, 0.0])  # turn about x
     q = v @ R  # the bend plane becomes xy
     rho = length / angle
     a = q[:, 0] / rho
