@@ -415,3 +415,14 @@ def draw_panel(context=None):
         panel.draw(fake, context)
     draw_panel.tree = root
     return log
+
+
+def forbid_lapack(monkeypatch):
+    """Make every numpy LAPACK entry point raise: the live path must not use them (in bpy 4.x
+    one call keeps OpenBLAS's thread spinning on the core the solver needs)."""
+
+    def boom(*_a, **_k):
+        raise AssertionError("LAPACK called on the live-update path")
+
+    for name in ("inv", "solve", "svd", "det", "eig", "eigh", "qr", "lstsq", "pinv"):
+        monkeypatch.setattr(np.linalg, name, boom)
