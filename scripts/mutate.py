@@ -215,6 +215,27 @@ MUTATIONS = [
         "(!used[v])",
         "a part (through edges) without a constrained vertex is left free, not passive",
     ),
+    M(
+        "E5",
+        "native/src/edge_deformer.cpp",
+        "0.5 * options.gravity(1), 0.5 * options.gravity(2),",
+        "0.5 * options.gravity(2), 0.5 * options.gravity(2),",
+        "gravity: the y component of g reads its z component",
+    ),
+    M(
+        "E6",
+        "native/src/edge_deformer.cpp",
+        "std::fill(d.acc[p].begin(), d.acc[p].begin() + 4 * static_cast<size_t>(nf), 0.0);",
+        "",
+        "parallel estimation: a later part's accumulator keeps the last iteration (threaded)",
+    ),
+    M(
+        "E7",
+        "native/src/edge_deformer.cpp",
+        "next[r] = w == 1.0 ? Y[r] : cur[r] + w * dv;",
+        "next[r] = w == 1.0 ? Y[r] : cur[r] + dv;",
+        "relaxation: the step is not scaled by w",
+    ),
     # Pose-space manipulation (pose_space_deformer.cpp).
     M(
         "S1",
@@ -243,6 +264,20 @@ MUTATIONS = [
         "pack_sym(R[i].transpose() * T[i], &I.stretch(i, 6 * k));",
         "pack_sym(T[i] * R[i].transpose(), &I.stretch(i, 6 * k));",
         "examples' stretch taken as the left polar factor (world frame), not the rest frame",
+    ),
+    M(
+        "S5",
+        "native/src/pose_space_deformer.cpp",
+        "acc += (adj_[k] & 1 ? lw_[l] : -lw_[l]) * d_[l];",
+        "acc += (adj_[k] & 1 ? -lw_[l] : lw_[l]) * d_[l];",
+        "geodesic Gauss-Newton: the link residual enters with the wrong sign at both ends",
+    ),
+    M(
+        "S6",
+        "native/src/pose_space_deformer.cpp",
+        "      w = w.cwiseMax(0.0);\n",
+        "",
+        "convex pose weights are not clipped at zero",
     ),
 ]
 
