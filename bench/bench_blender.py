@@ -74,10 +74,9 @@ def tube(name, rings, sides, length=4.0, radius=0.5):
 
 
 def activate(obj):
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    bpy.context.view_layer.objects.active = obj
-    obj.select_set(True)
+    from material_deform.bridge import activate  # once the add-on is enabled
+
+    activate(obj)
 
 
 def ring_polys(obj, sides, ring_rows, k=2):

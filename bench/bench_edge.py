@@ -40,9 +40,9 @@ STRETCH, BEND = 1e-4, 1.0  # the paper's cloth set-up (Fig. 2a, 10k-vertex plane
 
 
 def rot(axis, angle):
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+    """(3,3) turn by angle (rad) about axis: the library's exp of the axis-angle vector."""
+    a = np.asarray(axis, float)
+    return md.transform_exp(np.zeros((3, 3)), angle * a / np.linalg.norm(a))
 
 
 def plane(n):

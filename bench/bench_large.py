@@ -102,6 +102,8 @@ def cat_anchor_vertices(v):
 
 def poses(k, count, seed=0):
     """(count, k, 4, 4) float32: free rotations up to pi, uniform scale 0.8-1.25, moves."""
+    import matdeform as md
+
     rng = np.random.default_rng(seed)
     out = np.tile(np.eye(4, dtype=np.float32), (count, k, 1, 1))
     for p in range(count):
@@ -109,8 +111,7 @@ def poses(k, count, seed=0):
             axis = rng.normal(size=3)
             axis /= np.linalg.norm(axis)
             t = rng.uniform(0, np.pi)
-            K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-            R = np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K
+            R = md.transform_exp(np.zeros((3, 3)), t * axis)
             out[p, a, :3, :3] = rng.uniform(0.8, 1.25) * R
             out[p, a, :3, 3] = rng.normal(scale=0.2, size=3)
     return out

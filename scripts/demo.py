@@ -29,10 +29,9 @@ import matdeform as md  # noqa: E402
 from matdeform import shapes  # noqa: E402
 
 
-def rot(axis, angle):
-    a = np.asarray(axis, float) / np.linalg.norm(axis)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
+def turn_z(angle):
+    """(3,3) turn by angle (rad) about z: the library's exp of the axis-angle vector."""
+    return md.transform_exp(np.zeros((3, 3)), [0.0, 0.0, angle])
 
 
 def tentacle():
@@ -43,7 +42,7 @@ def tentacle():
     stiff_v = np.maximum(r / r.max(), 1e-3)
     shear = md.shear_from_vertex(f, stiff_v)
     # Log/exp blending takes the short way round, so a single anchor turns by < pi.
-    T = np.stack([np.eye(3), rot([0, 0, 1], 0.95 * np.pi)])
+    T = np.stack([np.eye(3), turn_z(0.95 * np.pi)])
     pinned = np.unique(f[base])
     uniform = md.MaterialDeformer(v, f, [base, tip], pinned=pinned).deform(T)
     material = md.MaterialDeformer(v, f, [base, tip], shear=shear, pinned=pinned).deform(T)
@@ -57,7 +56,7 @@ def bar():
     xc = v[:, 0]
     stiff_v = np.where((xc > 4.0) & (xc < 8.0), 1.0, 0.01)
     shear = md.shear_from_vertex(f, stiff_v)
-    T = np.stack([np.eye(3), rot([0, 0, 1], 0.5 * np.pi)])
+    T = np.stack([np.eye(3), turn_z(0.5 * np.pi)])
     pinned = np.unique(f[lo])
     uniform = md.MaterialDeformer(v, f, [lo, hi], pinned=pinned).deform(T)
     material = md.MaterialDeformer(v, f, [lo, hi], shear=shear, pinned=pinned).deform(T)
@@ -67,7 +66,7 @@ def bar():
 def bend_in_plane(v, angle, plane_angle, length):
     """Bend a tube along x into an arc of total turn `angle` in the plane through x at
     `plane_angle` about x (0: the xy plane), keeping x = 0 in place."""
-    R = rot([1, 0, 0], plane_angle)
+    R = md.transform_exp(np.zeros((3, 3)), [plane_angle, 0.0, 0.0])  # turn about x
     q = v @ R  # the bend plane becomes xy
     rho = length / angle
     a = q[:, 0] / rho
@@ -149,7 +148,7 @@ def pyramid_bar():
     ring0 = np.flatnonzero(np.abs(v[:, 0]) < 1e-9)[:16:4]
     ring1 = np.flatnonzero(np.abs(v[:, 0] - 10.0) < 1e-9)[:16:4]
     ctrl = np.concatenate([ring0, ring1])
-    R = rot([0, 0, 1], 0.4 * np.pi)
+    R = turn_z(0.4 * np.pi)
     c = np.array([10.0, 0.0, 0.0])
     target = np.vstack([v[ring0], (v[ring1] - c) @ R.T + [7.0, 4.0, 0.0]])
     X = md.PyramidDeformer(v, f, ctrl).deform(target, tol=1e-7)

@@ -64,10 +64,9 @@ def tube(name, radius_at, length, rings, sides, location):
 
 
 def activate(obj):
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    bpy.context.view_layer.objects.active = obj
-    obj.select_set(True)
+    from material_deform.bridge import activate  # once the add-on is enabled
+
+    activate(obj)
 
 
 def add_anchor(obj, pick):

@@ -101,11 +101,7 @@ def shoot(out_dir):
     empty = mesh.material_deform.anchors[0].empty
     steps = []
 
-    def select(obj):
-        for o in bpy.context.view_layer.objects:
-            o.select_set(False)
-        obj.select_set(True)
-        bpy.context.view_layer.objects.active = obj
+    from material_deform.bridge import activate as select
 
     def show_sidebar():
         win, area, region = _view3d()

@@ -441,6 +441,15 @@ def unique_group_name(obj, base) -> str:
     return name
 
 
+def activate(obj, view_layer=None) -> None:
+    """Make obj the only selected object of the view layer and its active object."""
+    layer = view_layer if view_layer is not None else bpy.context.view_layer
+    for o in layer.objects:
+        o.select_set(False)
+    layer.objects.active = obj
+    obj.select_set(True)
+
+
 def select_polygons_edit(obj, mask) -> None:
     """Select exactly the masked polygons; the object must be in Edit Mode. Goes through
     bmesh: writing edge selection through RNA segfaults Blender 5.0.1."""

@@ -5,10 +5,13 @@ from __future__ import annotations
 
 import bpy
 
-_classes: list[type] = []
+# The unregister function of the classes register() made (they carry the message, so they are
+# built per call), or None.
+_unregister = None
 
 
 def register(package: str, message: str) -> None:
+    global _unregister
     lines = ["Material Deform cannot run in this Blender:", *_wrap(message, 60)]
 
     def draw(self, _context):
@@ -31,14 +34,15 @@ def register(package: str, message: str) -> None:
             "draw": draw,
         },
     )
-    for cls in (prefs, panel):
-        bpy.utils.register_class(cls)
-        _classes.append(cls)
+    register_classes, _unregister = bpy.utils.register_classes_factory((prefs, panel))
+    register_classes()
 
 
 def unregister() -> None:
-    while _classes:
-        bpy.utils.unregister_class(_classes.pop())
+    global _unregister
+    if _unregister is not None:
+        _unregister()
+        _unregister = None
 
 
 def _wrap(text: str, width: int) -> list[str]:

@@ -449,10 +449,7 @@ class OBJECT_OT_material_deform_select_mesh(_ObjectOperator, bpy.types.Operator)
     def run(self, context, obj):
         if context.object is not None and context.object.mode != "OBJECT":
             raise BindError("Leave the current mode first")
-        for o in context.selected_objects:
-            o.select_set(False)
-        obj.select_set(True)
-        context.view_layer.objects.active = obj
+        bridge.activate(obj, context.view_layer)
         return {"FINISHED"}
 
 

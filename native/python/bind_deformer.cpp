@@ -45,6 +45,8 @@ void bind_deformer(py::module_& m) {
       .def("axis_weights", &MaterialDeformer::axis_weights, py::arg("axis"))
       .def_property_readonly("anisotropic", &MaterialDeformer::anisotropic)
       .def_property_readonly("num_region_vertices", &MaterialDeformer::num_region_vertices)
+      // Tests only: whether the last deform() reached the threaded substitution.
+      .def_property_readonly("substitution_threads", &MaterialDeformer::substitution_threads)
       .def_property_readonly("face_transforms", [](const MaterialDeformer& self) {
         Matrix3Array T;
         {

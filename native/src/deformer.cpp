@@ -193,6 +193,11 @@ RowMatrix MaterialDeformer::axis_weights(int axis) const {
   return out;
 }
 
+int MaterialDeformer::substitution_threads() const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  return last_substitution_threads_;
+}
+
 Matrix3Array MaterialDeformer::face_transforms() const {
   const std::lock_guard<std::mutex> lock(mutex_);
   Matrix3Array out(static_cast<size_t>(weights_full_.rows()), Eigen::Matrix3d::Identity());
@@ -276,6 +281,7 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
       },
       fixed_pos, &sub_out);
   last_logs_ = logs;
+  last_substitution_threads_ = rep.substitution_threads();
   if (sub_vertices_.size() == static_cast<size_t>(rest_.rows())) return sub_out;
   Vertices out = rest_;
   for (size_t s = 0; s < sub_vertices_.size(); ++s) {

@@ -7,7 +7,6 @@
 #include <cstdint>
 #include <limits>
 #include <mutex>
-#include <numeric>
 #include <stdexcept>
 #include <string>
 
@@ -80,11 +79,6 @@ void box_least_squares(const V3& r, const V3& u, const V3& w, double* x_out, dou
 template <class A>
 V3 edge_normal2(const A& xi, const A& xj, const A& xl, const A& xm) {
   return (xj - xi).cross(xl - xi) + (xi - xj).cross(xm - xj);
-}
-
-int find_root(std::vector<int>& parent, int x) {
-  while (parent[x] != x) x = parent[x] = parent[parent[x]];
-  return x;
 }
 
 // ---- per-iteration kernels (baseline and AVX2+FMA builds, see simd.hpp)
@@ -405,19 +399,17 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
   }
 
   // Passive vertices: in no face, or in a part (through edges) without a constrained vertex.
-  std::vector<int> parent(n);
-  std::iota(parent.begin(), parent.end(), 0);
+  DisjointSets sets(n);
   std::vector<char> used(n, 0);
   for (int e = 0; e < E; ++e) {
-    const int a = find_root(parent, edges_(e, 0)), b = find_root(parent, edges_(e, 1));
+    sets.unite(edges_(e, 0), edges_(e, 1));
     used[edges_(e, 0)] = used[edges_(e, 1)] = 1;
-    if (a != b) parent[std::max(a, b)] = std::min(a, b);
   }
   std::vector<char> root_fixed(n, 0);
-  for (int v : constrained) root_fixed[find_root(parent, v)] = 1;
+  for (int v : constrained) root_fixed[sets.find(v)] = 1;
   std::vector<int> fixed_list(constrained.begin(), constrained.end());
   for (int v = 0; v < n; ++v) {
-    if (!is_fixed[v] && (!used[v] || !root_fixed[find_root(parent, v)])) {
+    if (!is_fixed[v] && (!used[v] || !root_fixed[sets.find(v)])) {
       is_fixed[v] = 1;
       fixed_list.push_back(v);
     }

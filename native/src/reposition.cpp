@@ -298,6 +298,10 @@ PoissonRepositioner::~PoissonRepositioner() = default;
 
 int PoissonRepositioner::num_unknowns() const { return static_cast<int>(impl_->free_verts.size()); }
 
+int PoissonRepositioner::substitution_threads() const {
+  return impl_->chol ? impl_->chol->substitution_threads() : 0;
+}
+
 void PoissonRepositioner::solve(const Matrix3Array& targets, const Vertices& fixed_positions,
                                 Vertices* out) const {
   if (static_cast<int>(targets.size()) != impl_->m) {

@@ -40,10 +40,10 @@ def mesh_object(name, verts, faces):
 
 
 def activate(obj):
-    for o in bpy.context.view_layer.objects:
-        o.select_set(False)
-    bpy.context.view_layer.objects.active = obj
-    obj.select_set(True)
+    """The add-on's bridge.activate (imported late: the add-on is enabled by a fixture)."""
+    from material_deform.bridge import activate
+
+    activate(obj)
 
 
 def select_faces(obj, pred):
@@ -415,3 +415,14 @@ def draw_panel(context=None):
         panel.draw(fake, context)
     draw_panel.tree = root
     return log
+
+
+def forbid_lapack(monkeypatch):
+    """Make every numpy LAPACK entry point raise: the live path must not use them (in bpy 4.x
+    one call keeps OpenBLAS's thread spinning on the core the solver needs)."""
+
+    def boom(*_a, **_k):
+        raise AssertionError("LAPACK called on the live-update path")
+
+    for name in ("inv", "solve", "svd", "det", "eig", "eigh", "qr", "lstsq", "pinv"):
+        monkeypatch.setattr(np.linalg, name, boom)

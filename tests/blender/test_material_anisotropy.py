@@ -11,6 +11,7 @@ from helpers import (
     edge_faces,
     expect_error,
     face_rotation_angles,
+    forbid_lapack,
     output,
     paint,
     rest,
@@ -140,13 +141,11 @@ def twist_and_bend(aniso, **kw):
 
 
 def test_anisotropic_live_updates_call_no_lapack(monkeypatch):
-    from test_workflow import _forbid_lapack
-
     obj, top = _fig5_bar(True, axes_empty=(0.0, math.pi / 2, 0.0), swap=True)
     top.empty.rotation_euler.z = 0.3
     update()  # first update after bind checks the axes once
     before = output(obj).copy()
-    _forbid_lapack(monkeypatch)
+    forbid_lapack(monkeypatch)
     top.empty.rotation_euler.z = 0.9
     update()
     after = output(obj).copy()

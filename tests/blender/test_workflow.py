@@ -10,6 +10,7 @@ from helpers import (
     attr,
     evaluated,
     face_rotation_angles,
+    forbid_lapack,
     output,
     paint,
     rest,
@@ -124,23 +125,12 @@ def test_bind_then_move_empty_anchor_follows_exactly():
     np.testing.assert_allclose(evaluated(obj), x, atol=1e-6)
 
 
-def _forbid_lapack(monkeypatch):
-    """Make every numpy LAPACK entry point raise: the live path must not use them (in bpy 4.x
-    one call keeps OpenBLAS's thread spinning on the core the solver needs)."""
-
-    def boom(*_a, **_k):
-        raise AssertionError("LAPACK called on the live-update path")
-
-    for name in ("inv", "solve", "svd", "det", "eig", "eigh", "qr", "lstsq", "pinv"):
-        monkeypatch.setattr(np.linalg, name, boom)
-
-
 def test_live_updates_call_no_lapack(monkeypatch):
     obj, top, _ = _bound_bar()
     top.empty.location.x += 0.3
     update()  # first update after bind may fill caches
     before = output(obj).copy()
-    _forbid_lapack(monkeypatch)
+    forbid_lapack(monkeypatch)
     for i in range(3):
         top.empty.location.x += 0.2
         top.empty.rotation_euler.y = 0.2 * (i + 1)

@@ -33,8 +33,83 @@ TEST(Deformer, FollowModeReproducesCommonRigidTransform) {
 }
 
 namespace {
-// A tube large enough for every parallel path of deform() (blend, right-hand side, substitution).
-void big_bar(Vertices* V, Faces* F) { meshes::make_bar(5000, 500.0, V, F); }
+Eigen::Matrix4d affine(double scale, double angle, const Eigen::Vector3d& axis,
+                       const Eigen::Vector3d& t) {
+  Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
+  T.topLeftCorner<3, 3>() = scale * Eigen::AngleAxisd(angle, axis.normalized()).toRotationMatrix();
+  T.topRightCorner<3, 1>() = t;
+  return T;
+}
+Eigen::RowVector3d image(const Eigen::Matrix4d& T, const Vertices& V, int v) {
+  return (T.topLeftCorner<3, 3>() * V.row(v).transpose() + T.topRightCorner<3, 1>()).transpose();
+}
+}  // namespace
+
+TEST(Deformer, AnchorsSharingVerticesTakeTheMeanOfTheirTransforms) {
+  // Segments 3 and 4 of the bar (faces 24-31 and 32-39) are two anchors sharing ring 4
+  // (vertices 16-19), with different transforms; the end caps are two more.
+  Vertices V;
+  Faces F;
+  meshes::make_bar(10, 10.0, &V, &F);
+  const int m = static_cast<int>(F.rows());
+  AnchorList anchors = {{m - 4, m - 3}, {}, {}, {m - 2, m - 1}};
+  for (int f = 24; f < 32; ++f) anchors[1].push_back(f);
+  for (int f = 32; f < 40; ++f) anchors[2].push_back(f);
+  const DualEdges dual = dual_edges(F);
+  const MaterialDeformer d(V, F, anchors, Eigen::VectorXd::Ones(m),
+                           RowMatrix::Ones(dual.pairs.rows(), 1));
+  const std::vector<Eigen::Matrix4d> T = {
+      Eigen::Matrix4d::Identity(), affine(1.0, 0.6, {0, 0, 1}, {0, 0.5, 0}),
+      affine(1.3, -0.9, {0, 1, 0.2}, {0.4, 0, 0.2}), affine(0.8, 1.2, {1, 0, 0}, {0, 1, 0})};
+  const Vertices X = d.deform(T, true, nullptr);
+  for (int v = 12; v < 16; ++v) EXPECT_LT((X.row(v) - image(T[1], V, v)).norm(), 1e-12);
+  for (int v = 16; v < 20; ++v) {
+    EXPECT_LT((X.row(v) - 0.5 * (image(T[1], V, v) + image(T[2], V, v))).norm(), 1e-12);
+  }
+  for (int v = 20; v < 24; ++v) EXPECT_LT((X.row(v) - image(T[2], V, v)).norm(), 1e-12);
+  // One more translation for every anchor moves the whole result by it (the blended targets
+  // do not see translations; the fixed positions, means included, all move by t).
+  const Eigen::Vector3d t(0.3, -2.0, 1.5);
+  std::vector<Eigen::Matrix4d> moved = T;
+  for (auto& M : moved) M.topRightCorner<3, 1>() += t;
+  const Vertices Y = d.deform(moved, true, nullptr);
+  EXPECT_LT(((Y.rowwise() - t.transpose()) - X).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_GT((X - V).cwiseAbs().maxCoeff(), 0.5);
+}
+
+TEST(Deformer, DifferentAnchorTurnsAboutOneAxisCommuteWithATurnAboutIt) {
+  // Anchor transforms s_a R_x(theta_a) blend to s R_x(theta) per face, so a further scaled
+  // turn G about the same axis (through the origin) gives G times the result, although the
+  // anchors' transforms differ and the bar bends between them.
+  Vertices V;
+  Faces F;
+  meshes::make_bar(12, 12.0, &V, &F);
+  const int m = static_cast<int>(F.rows());
+  const DualEdges dual = dual_edges(F);
+  Eigen::VectorXd shear(m);
+  for (int f = 0; f < m; ++f) shear(f) = 0.2 + 0.1 * (f % 7);
+  RowMatrix bend(dual.pairs.rows(), 1);
+  for (Eigen::Index e = 0; e < bend.rows(); ++e) bend(e, 0) = 0.3 + 0.2 * (e % 5);
+  const MaterialDeformer d(V, F, {{m - 4, m - 3}, {48, 49, 50, 51}, {m - 2, m - 1}}, shear, bend);
+  const Eigen::Vector3d x(1, 0, 0);
+  const std::vector<Eigen::Matrix4d> T = {affine(1.0, 0.3, x, {0, 0.2, 0}),
+                                          affine(1.2, 1.4, x, {0.5, 0, 0.3}),
+                                          affine(0.9, -0.8, x, {0, 0, 1})};
+  const Eigen::Matrix4d G = affine(1.1, 0.7, x, Eigen::Vector3d::Zero());
+  std::vector<Eigen::Matrix4d> GT;
+  for (const auto& M : T) GT.push_back(G * M);
+  const Vertices X = d.deform(T, true, nullptr);
+  const Vertices Y = d.deform(GT, true, nullptr);
+  const Vertices expect = X * G.topLeftCorner<3, 3>().transpose();
+  EXPECT_LT((Y - expect).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_GT((X - V).cwiseAbs().maxCoeff(), 0.5);
+}
+
+namespace {
+// A mesh large enough for every parallel path of deform(): blend and right-hand side (8192
+// faces per task) and the threaded substitution (from ~400k factor entries; a thin bar of the
+// same face count has a narrow band factor and stays below that).
+void big_mesh(Vertices* V, Faces* F) { meshes::make_grid(160, 140, V, F); }
 
 std::vector<Eigen::Matrix4d> pose(int i) {
   Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
@@ -52,10 +127,10 @@ TEST(Deformer, ConcurrentCallsMatchSerialOnesExactly) {
   set_num_threads(2);  // the pool's parallel paths, also on a one-core machine
   Vertices V;
   Faces F;
-  big_bar(&V, &F);
+  big_mesh(&V, &F);
   const int m = static_cast<int>(F.rows());
   const DualEdges dual = dual_edges(F);
-  const AnchorList anchors = {{m - 4, m - 3}, {m - 2, m - 1}};
+  const AnchorList anchors = {{0, 1}, {m - 2, m - 1}};
   auto make = [&] {
     return std::make_unique<MaterialDeformer>(V, F, anchors, Eigen::VectorXd::Ones(m),
                                               RowMatrix::Ones(dual.pairs.rows(), 1));
@@ -82,5 +157,6 @@ TEST(Deformer, ConcurrentCallsMatchSerialOnesExactly) {
   auto b = std::async(std::launch::async, worker, 5);
   EXPECT_EQ(test_timeout::get_or_exit(a, 120, "deform thread a"), 0);
   EXPECT_EQ(test_timeout::get_or_exit(b, 120, "deform thread b"), 0);
+  EXPECT_EQ(shared->substitution_threads(), 2);  // the threaded substitution was reached
   matdeform::set_num_threads(before);
 }

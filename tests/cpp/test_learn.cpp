@@ -1,33 +1,20 @@
 // Closed-form checks of stiffness learning (Popa et al. 2006, Sec. 6).
 #include <gtest/gtest.h>
 
+#include <Eigen/Dense>
 #include <Eigen/Geometry>
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 #include "matdeform/learn.hpp"
 #include "matdeform/mesh.hpp"
+#include "test_meshes.hpp"
 
 namespace md = matdeform;
+using md::meshes::make_grid;
 
 namespace {
-
-// Flat (nx x ny)-quad grid in the z = 0 plane, unit spacing, two triangles per quad.
-void make_grid(int nx, int ny, md::Vertices* V, md::Faces* F) {
-  V->resize((nx + 1) * (ny + 1), 3);
-  for (int j = 0; j <= ny; ++j) {
-    for (int i = 0; i <= nx; ++i) V->row(j * (nx + 1) + i) << i, j, 0.0;
-  }
-  F->resize(2 * nx * ny, 3);
-  int f = 0;
-  for (int j = 0; j < ny; ++j) {
-    for (int i = 0; i < nx; ++i) {
-      const int a = j * (nx + 1) + i, b = a + 1, c = a + nx + 1, d = c + 1;
-      F->row(f++) << a, b, d;
-      F->row(f++) << a, d, c;
-    }
-  }
-}
 
 // Folds everything right of the line x = x0 about the y axis by `angle` (a rigid hinge).
 md::Vertices fold(const md::Vertices& V, double x0, double angle) {
@@ -71,6 +58,8 @@ class HingeTest : public ::testing::Test {
   md::DualEdges dual;
   std::vector<md::Vertices> poses;
 };
+
+constexpr double kPi = 3.14159265358979323846;
 
 double frob_sq_rotation_gap(double angle) { return 8.0 * std::pow(std::sin(angle / 2.0), 2); }
 
@@ -204,16 +193,114 @@ TEST(LearnShear, UniformStretchMatchesClosedForm) {
   EXPECT_LT(d.bend.maxCoeff(), 1e-24);
 }
 
+namespace {
+// Frame of face f with the fourth vertex at n / sqrt|n| (written here, not frames.hpp's).
+Eigen::Matrix3d frame_of(const md::Vertices& X, const md::Faces& F, int f) {
+  const Eigen::Vector3d a = X.row(F(f, 0)), b = X.row(F(f, 1)), c = X.row(F(f, 2));
+  const Eigen::Vector3d n = (b - a).cross(c - a);
+  Eigen::Matrix3d M;
+  M << b - a, c - a, n / std::sqrt(n.norm());
+  return M;
+}
+// Polar factors T = S Q of face f's deformation gradient, S = sqrt(T T^T) by an eigen-solve.
+void polar_of(const md::Vertices& rest, const md::Vertices& pose, const md::Faces& F, int f,
+              Eigen::Matrix3d* S, Eigen::Matrix3d* Q) {
+  const Eigen::Matrix3d T = frame_of(pose, F, f) * frame_of(rest, F, f).inverse();
+  const Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(T * T.transpose());
+  *S = es.operatorSqrt();
+  *Q = S->inverse() * T;
+}
+}  // namespace
+
 TEST(LearnShear, CollapsedFacesAreSkipped) {
   md::Vertices V;
   md::Faces F;
-  make_grid(2, 1, &V, &F);  // faces 0,1 in the left quad, 2,3 in the right one
+  make_grid(2, 1, &V, &F);  // faces 0 = (0,1,4), 1 = (0,4,3) left, 2 = (1,2,5), 3 = (1,5,4) right
   md::Vertices P = V;
   P.row(4) << 0.0, 0.5, 0.0;  // vertex (1,1) onto edge (0,0)-(0,1): face 1 = (0,4,3) collapses
-  const md::Distortions d = md::learn_distortions(V, F, md::dual_edges(F).pairs, {V, P}, false);
-  EXPECT_EQ(d.shear(1), 0.0);  // only the rest-like pose counted for the collapsed face
-  EXPECT_GT(d.shear(0), 0.1);  // face 0 = (0,1,4) is squashed, not collapsed
-  EXPECT_TRUE(d.bend.allFinite());
+  const md::DualEdges dual = md::dual_edges(F);
+  ASSERT_EQ(dual.pairs.rows(), 3);  // (0,1), (0,3), (2,3)
+  Eigen::Matrix3d S0, Q0, S3, Q3;
+  polar_of(V, P, F, 0, &S0, &Q0);  // face 0 is squashed, not collapsed
+  polar_of(V, P, F, 3, &S3, &Q3);
+  for (bool aniso : {false, true}) {
+    const md::Distortions d = md::learn_distortions(V, F, dual.pairs, {V, P}, aniso);
+    EXPECT_EQ(d.shear(1), 0.0);  // only the rest pose counted for the collapsed face
+    // The edge to the collapsed face: that pose is skipped, only the rest pose counts.
+    EXPECT_EQ(d.bend.row(0).cwiseAbs().maxCoeff(), 0.0) << "aniso " << aniso;
+    EXPECT_NEAR(d.shear(0), (S0 - Eigen::Matrix3d::Identity()).squaredNorm(), 1e-12);
+    EXPECT_GT(d.shear(0), 0.1);
+    EXPECT_NEAR(d.shear(3), (S3 - Eigen::Matrix3d::Identity()).squaredNorm(), 1e-12);
+    EXPECT_NEAR(d.shear(2), 0.0, 1e-24);  // face 2 does not move
+    if (!aniso) {
+      EXPECT_NEAR(d.bend(1, 0), (Q0 - Q3).squaredNorm(), 1e-12);
+      EXPECT_NEAR(d.bend(2, 0), (Eigen::Matrix3d::Identity() - Q3).squaredNorm(), 1e-12);
+      EXPECT_GT(d.bend(1, 0), 1e-3);
+    } else {
+      // Rest frame: the relative rotation's axis-angle components, squared. The grid stays in
+      // its plane, so the turns are about z only.
+      const Eigen::AngleAxisd r03(Q0.transpose() * Q3), r23(Q3);
+      EXPECT_NEAR(d.bend(1, 2), std::pow(r03.angle() * r03.axis().z(), 2), 1e-12);
+      EXPECT_NEAR(d.bend(2, 2), std::pow(r23.angle() * r23.axis().z(), 2), 1e-12);
+      EXPECT_NEAR(d.bend.leftCols(2).cwiseAbs().maxCoeff(), 0.0, 1e-20);
+    }
+  }
+}
+
+TEST(Learn, FaceCollapsedInAPoseIsLeftOutOfEveryStatistic) {
+  // A 4x3 grid whose corner vertex (4,0) belongs to face 6 = (3,4,9) only: moving it onto
+  // vertex 9 collapses that face (exactly, also after the rigid motion) and nothing else. The
+  // pose is the grid turned and moved rigidly: every other face has the same rotation, so
+  // every statistic is zero once face 6 is left out (rest pose first: a stale rotation of
+  // face 6 would be the identity).
+  md::Vertices V;
+  md::Faces F;
+  make_grid(4, 3, &V, &F);
+  ASSERT_EQ(F(6, 0), 3);
+  ASSERT_EQ(F(6, 1), 4);
+  ASSERT_EQ(F(6, 2), 9);
+  md::Vertices P = rigid(V, Eigen::Vector3d(1, 2, 3), 2.0, Eigen::Vector3d(1, -2, 0.5));
+  P.row(4) = P.row(9);
+  const md::IndexPairs pairs = md::dual_edges(F).pairs;
+  // Face 6's only dual edge is (6,7): the collapsed face is the first of the pair.
+  int at6 = 0;
+  for (Eigen::Index e = 0; e < pairs.rows(); ++e) at6 += pairs(e, 0) == 6 || pairs(e, 1) == 6;
+  ASSERT_EQ(at6, 1);
+  for (md::AxisFrame frame : {md::AxisFrame::kRest, md::AxisFrame::kWorldLogDifference}) {
+    for (bool aniso : {false, true}) {
+      const md::Distortions d = md::learn_distortions(V, F, pairs, {V, P}, aniso, frame);
+      EXPECT_NEAR(d.bend.cwiseAbs().maxCoeff(), 0.0, 1e-12) << "aniso " << aniso;
+      EXPECT_NEAR(d.shear.cwiseAbs().maxCoeff(), 0.0, 1e-12);
+    }
+  }
+  // rotation_spread: face 6 has weight 0 in the averages, the others all see one rotation.
+  // (Normalising by the weight w instead of w^2 would give 3 (1 - w) > 0 next to face 6.)
+  const md::RowMatrix s = md::rotation_spread(V, F, pairs, {P, V}, 2);
+  EXPECT_NEAR(s.cwiseAbs().maxCoeff(), 0.0, 1e-12);
+}
+
+TEST(Learn, WorldFrameTakesTheClosestLogNearPi) {
+  // Hinge folds of the strip about y, each pose then turned about y by nearly pi: the faces on
+  // one side of the hinge have angle < pi, the other side's > pi, so their principal logs point
+  // opposite ways. The world-frame difference of the logs is still the fold angle (same axis),
+  // as in the rest frame; the plain difference of the principal logs would be ~2 pi - angle.
+  md::Vertices V;
+  md::Faces F;
+  make_grid(10, 3, &V, &F);
+  const md::DualEdges dual = md::dual_edges(F);
+  const Eigen::Vector3d y = Eigen::Vector3d::UnitY(), zero = Eigen::Vector3d::Zero();
+  const std::vector<md::Vertices> poses = {rigid(fold(V, 3.0, 0.4), y, kPi - 0.1, zero),
+                                           rigid(fold(V, 7.0, 1.1), y, kPi - 0.5, zero)};
+  const auto at3 = on_line(V, dual, 3.0), at7 = on_line(V, dual, 7.0);
+  for (md::AxisFrame frame : {md::AxisFrame::kRest, md::AxisFrame::kWorldLogDifference}) {
+    const md::Distortions d = md::learn_distortions(V, F, dual.pairs, poses, true, frame);
+    for (Eigen::Index e = 0; e < d.bend.rows(); ++e) {
+      const auto u = static_cast<size_t>(e);
+      const double want = at3[u] ? 0.4 * 0.4 : at7[u] ? 1.1 * 1.1 : 0.0;
+      EXPECT_NEAR(d.bend(e, 1), want, 1e-9) << "edge " << e;
+      EXPECT_NEAR(d.bend(e, 0) + d.bend(e, 2), 0.0, 1e-9);
+    }
+  }
 }
 
 TEST(StiffnessMap, LinearAndExponentialClosedForm) {

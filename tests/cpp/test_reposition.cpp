@@ -49,6 +49,15 @@ TEST(Reposition, DegenerateFacesAndLooseVerticesAreHandled) {
   PoissonRepositioner rep(V2, F2, Eigen::VectorXd::Ones(F2.rows()), {});
   Vertices X;
   rep.solve(Matrix3Array(F2.rows(), Eigen::Matrix3d::Identity()), Vertices(0, 3), &X);
-  ASSERT_TRUE(X.allFinite());
   EXPECT_LT((X - V2).cwiseAbs().maxCoeff(), 1e-10);  // identity: everything at rest
+  // A turn: the grid turns about its vertex mean (nothing is fixed); the loose vertex and the
+  // one only the sliver uses keep their rest positions.
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(1.3, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  rep.solve(Matrix3Array(F2.rows(), R), Vertices(0, 3), &X);
+  const Eigen::RowVector3d c = V.colwise().mean();
+  const Vertices expect = ((V.rowwise() - c) * R.transpose()).rowwise() + c;
+  EXPECT_LT((X.topRows(V.rows()) - expect).cwiseAbs().maxCoeff(), 1e-10);
+  EXPECT_EQ(X.row(V.rows()), V2.row(V.rows()));
+  EXPECT_EQ(X.row(V.rows() + 1), V2.row(V.rows() + 1));
 }

@@ -70,11 +70,30 @@ TEST(Weights, PathGraphMatchesSeriesResistanceClosedForm) {
   }
   Eigen::VectorXd phi(dual.pairs.rows());
   for (int e = 0; e < phi.size(); ++e) phi(e) = 0.1 + (e % 5) * 0.7;
+  // Resistance from path position p to the far end: r[p] = sum of 1/phi over the rest.
+  std::vector<double> r(m, 0.0);
+  for (int p = m - 2; p >= 0; --p) r[p] = r[p + 1] + 1.0 / phi(via[p + 1]);
+  // Two anchors at the ends: W0 = r[p] / r[0], W1 = 1 - W0.
   const RowMatrix W = harmonic_weights(m, dual.pairs, phi, {{order.front()}, {order.back()}});
-  std::vector<double> r_to_end(m, 0.0);
-  for (int p = m - 2; p >= 0; --p) r_to_end[p] = r_to_end[p + 1] + 1.0 / phi(via[p + 1]);
   for (int p = 0; p < m; ++p) {
-    EXPECT_NEAR(W(order[p], 0), r_to_end[p] / r_to_end[0], 1e-12);
+    EXPECT_NEAR(W(order[p], 0), r[p] / r[0], 1e-12) << p;
+    EXPECT_NEAR(W(order[p], 1), 1.0 - r[p] / r[0], 1e-12) << p;
+  }
+  // Three anchors (ends and middle, given in another order): each stretch of the path between
+  // two anchors interpolates those two by resistance, and the third anchor's column is zero.
+  const int c = m / 2;
+  const RowMatrix W3 =
+      harmonic_weights(m, dual.pairs, phi, {{order[c]}, {order.back()}, {order.front()}});
+  for (int p = 0; p < m; ++p) {
+    Eigen::RowVector3d want;
+    if (p <= c) {
+      const double t = (r[p] - r[c]) / (r[0] - r[c]);  // weight of the front anchor
+      want << 1.0 - t, 0.0, t;
+    } else {
+      const double t = r[p] / r[c];  // weight of the middle anchor
+      want << t, 1.0 - t, 0.0;
+    }
+    for (int a = 0; a < 3; ++a) EXPECT_NEAR(W3(order[p], a), want(a), 1e-12) << p << " " << a;
   }
 }
 

@@ -23,6 +23,7 @@ import sys
 import tempfile
 
 import numpy as np
+from conftest import rotation
 from permutation import Relabelling, grid
 
 import matdeform as md
@@ -66,12 +67,9 @@ class Failure(Exception):
 # ---- random inputs -------------------------------------------------------------------------
 
 
-def rotation(rng, max_angle=np.pi):
+def random_rotation(rng, max_angle=np.pi):
     a = rng.normal(size=3)
-    a /= np.linalg.norm(a)
-    t = rng.uniform(0, max_angle)
-    K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    return np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K
+    return rotation(a / np.linalg.norm(a), rng.uniform(0, max_angle))
 
 
 def random_mesh(rng):
@@ -107,7 +105,7 @@ def random_mesh(rng):
         v = np.vstack([[0, 0, 0.3], np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], 1)])
         f = np.stack([np.zeros(c, int), np.arange(1, c + 1), np.arange(2, c + 2)], 1)
     scale = 10.0 ** rng.uniform(-3, 3)
-    v = (v @ rotation(rng).T) * scale + rng.normal(scale=scale, size=3)
+    v = (v @ random_rotation(rng).T) * scale + rng.normal(scale=scale, size=3)
     return str(kind), v, np.asarray(f, dtype=np.int64)
 
 
@@ -129,7 +127,7 @@ def random_transforms(rng, k, diag, affine=True):
         S = np.eye(3) * 10.0 ** rng.uniform(-0.5, 0.5)
         if rng.random() < 0.3:  # non-uniform stretch
             S = np.diag(10.0 ** rng.uniform(-0.5, 0.5, 3))
-        T[a, :3, :3] = S @ rotation(rng, 3.5)
+        T[a, :3, :3] = S @ random_rotation(rng, 3.5)
         T[a, :3, 3] = rng.normal(scale=diag, size=3)
     return T if affine else T[:, :3, :3].copy()
 
@@ -264,7 +262,7 @@ def case_deformer(rng, v, f, hostile, perm, kind):
         extra = rng.permutation(m)[: int(rng.integers(1, m + 1))]
         kw["region"] = np.unique(np.concatenate([extra, *anchors]))
     if rng.random() < 0.2:
-        kw["axes"] = rotation(rng)
+        kw["axes"] = random_rotation(rng)
     affine = rng.random() < 0.6
     T = random_transforms(rng, len(anchors), diag, affine)
     pp = None
@@ -423,7 +421,7 @@ def random_poses(rng, v, count):
     out = []
     diag = float(np.linalg.norm(np.ptp(v, axis=0))) if len(v) else 1.0
     for _ in range(count):
-        p = v @ rotation(rng).T + rng.normal(scale=diag, size=3)
+        p = v @ random_rotation(rng).T + rng.normal(scale=diag, size=3)
         out.append(p + rng.normal(scale=0.05 * diag, size=v.shape))
     return out
 
@@ -523,17 +521,17 @@ def case_stiffness_from_distortion(rng, v, f, hostile, perm, kind):
 def random_matrix(rng):
     kind = rng.choice(["rotation", "similarity", "general", "huge", "singular", "negative", "4x4"])
     if kind == "rotation":
-        return rotation(rng)
+        return random_rotation(rng)
     if kind == "similarity":
-        return 10.0 ** rng.uniform(-3, 3) * rotation(rng)
+        return 10.0 ** rng.uniform(-3, 3) * random_rotation(rng)
     if kind == "general":
         return rng.normal(size=(3, 3))
     if kind == "huge":
-        return np.diag(10.0 ** rng.uniform(-320, 320, 3)) @ rotation(rng)
+        return np.diag(10.0 ** rng.uniform(-320, 320, 3)) @ random_rotation(rng)
     if kind == "singular":
         return np.outer(rng.normal(size=3), rng.normal(size=3))
     if kind == "negative":
-        return rotation(rng) @ np.diag([1, 1, -1])
+        return random_rotation(rng) @ np.diag([1, 1, -1])
     return np.eye(4)
 
 

@@ -19,6 +19,12 @@ def dual_pairs(faces):
     return np.array(sorted(pairs))
 
 
+def default_bend(faces, shear):
+    """(pairs, phi): the dual edges and the paper's default bending phi_fg = (psi_f + psi_g)/2."""
+    pairs = dual_pairs(faces)
+    return pairs, 0.5 * (shear[pairs[:, 0]] + shear[pairs[:, 1]])
+
+
 def weights(m, pairs, phi, anchors):
     k = len(anchors)
     L = np.zeros((m, m))
@@ -39,6 +45,58 @@ def weights(m, pairs, phi, anchors):
 def blend(transforms3, W):
     logs = [sla.logm(T).real for T in transforms3]
     return np.array([sla.expm(sum(w * L for w, L in zip(row, logs, strict=True))) for row in W])
+
+
+def _polar_logs(T):
+    """(log S, axis-angle of R) of T = S R (scipy's left polar decomposition), T (3,3)."""
+    R, S = sla.polar(T, side="left")  # T = S @ R
+    lam, U = np.linalg.eigh(S)
+    K = sla.logm(R).real
+    return U @ np.diag(np.log(lam)) @ U.T, np.array([K[2, 1], K[0, 2], K[1, 0]])
+
+
+def _skew(w):
+    return np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]])
+
+
+def blend_polar(transforms3, W):
+    """The documented blend for any det > 0 transform (docs/core.md): with T_a = S_a R_a,
+    T = expm(sum w log S_a) expm(sum w [log R_a]x). Equals blend() for similarities."""
+    logs = [_polar_logs(T) for T in transforms3]
+    out = []
+    for row in W:
+        LS = sum(w * ls for w, (ls, _) in zip(row, logs, strict=True))
+        r = sum(w * lr for w, (_, lr) in zip(row, logs, strict=True))
+        out.append(sla.expm(LS) @ sla.expm(_skew(r)))
+    return np.array(out)
+
+
+def blend_anisotropic(transforms3, Ws, axes):
+    """Sec. 5 blend, one weight field per axis (Ws: three (m,k)): rotation component c of
+    anchor a (in the axes' frame) is weighted by Ws[c]; log-stretch by the mean of the three."""
+    logs = [_polar_logs(T) for T in transforms3]
+    C = np.array([axes.T @ lr for _, lr in logs])  # (k,3)
+    out = []
+    for i in range(len(Ws[0])):
+        w = np.stack([Wc[i] for Wc in Ws], axis=1)  # (k,3)
+        r = axes @ (w * C).sum(axis=0)
+        LS = sum(wm * ls for wm, (ls, _) in zip(w.mean(axis=1), logs, strict=True))
+        out.append(sla.expm(LS) @ sla.expm(_skew(r)))
+    return np.array(out)
+
+
+def follow_positions(V, F, anchors, T):
+    """Fixed vertices and their positions in follow mode: each anchor vertex goes to the mean
+    of its anchors' full (4,4) transforms."""
+    owner = {}
+    for a, fa in enumerate(anchors):
+        for vi in np.unique(F[fa]):
+            owner.setdefault(int(vi), []).append(a)
+    fixed = np.array(sorted(owner))
+    pos = np.array(
+        [np.mean([T[a, :3, :3] @ V[i] + T[a, :3, 3] for a in owner[int(i)]], axis=0) for i in fixed]
+    )
+    return fixed, pos
 
 
 def frame(a, b, c):

@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from conftest import rotation
 
 import matdeform as md
@@ -31,3 +32,24 @@ def test_obj_round_trip(tmp_path):
     v2, f2 = md.read_obj(tmp_path / "t.obj")
     np.testing.assert_allclose(v2, v, atol=1e-8)
     np.testing.assert_array_equal(f2, f)
+
+
+def test_faces_inside_a_vertex_selection():
+    # A 3x2 grid of squares, two triangles each; vertex (i, j) is number 4 j + i.
+    f = []
+    for j in range(2):
+        for i in range(3):
+            a = 4 * j + i
+            f += [[a, a + 1, a + 5], [a, a + 5, a + 4]]
+    f = np.array(f)
+    # The left two squares' vertices (columns 0-2 of the bottom row and the middle row).
+    ids = [0, 1, 2, 4, 5, 6]
+    np.testing.assert_array_equal(md.faces_inside(f, ids), [0, 1, 2, 3])
+    # Order and repeats do not matter; ids beyond every face are ignored.
+    np.testing.assert_array_equal(md.faces_inside(f, [6, 5, 5, 4, 2, 1, 0, 99]), [0, 1, 2, 3])
+    # A triangle needs all three: without vertex 5 only face 2 = (1, 2, 6) is left.
+    np.testing.assert_array_equal(md.faces_inside(f, [0, 1, 2, 4, 6]), [2])
+    np.testing.assert_array_equal(md.faces_inside(f, np.arange(12)), np.arange(12))
+    assert md.faces_inside(f, []).dtype == np.int64 and len(md.faces_inside(f, [])) == 0
+    with pytest.raises(ValueError, match="vertex_ids"):
+        md.faces_inside(f, [-1])

@@ -199,6 +199,15 @@ def test_convex_weights_and_regularisation(scene):
     np.testing.assert_allclose(
         d.pose_weights(handle_positions(ex[1], handles)), [0, 1, 0], atol=1e-12
     )
+    # beyond example 0 (away from example 2) the plain weights go negative; the convex ones
+    # are those clipped at zero and renormalised
+    plain = md.PoseSpaceDeformer(v, f, ex, handles)
+    for s in (0.5, 1.0, 2.0):
+        hp = handle_positions(ex[0] + s * (ex[0] - ex[2]), handles)
+        w = plain.pose_weights(hp)
+        assert w.min() < -0.01
+        clipped = np.maximum(w, 0.0)
+        np.testing.assert_allclose(d.pose_weights(hp), clipped / clipped.sum(), atol=1e-12)
     # a ridge relaxes the exact interpolation (criterion 1) but keeps the partition of unity
     r = md.PoseSpaceDeformer(v, f, ex, handles, weight_regularization=0.1)
     w = r.pose_weights(handle_positions(ex[1], handles))

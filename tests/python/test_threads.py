@@ -3,16 +3,20 @@ must equal serial ones bit for bit, and nothing may hang (the run is in a fresh 
 a timeout, so a deadlock fails the test instead of stalling pytest)."""
 
 import threading
+from pathlib import Path
 
 from isolated import run_isolated
 
 import matdeform as md
 
 CONCURRENT = """
+import sys
 import threading
 import numpy as np
 import matdeform as md
 from matdeform import shapes
+sys.path.insert(0, {tests!r})
+from conftest import rotation
 
 md.set_num_threads(2)  # the task pool's parallel paths, also on a one-core machine
 v, f = shapes.tube_with_faces(60000)  # large enough for the parallel blend and substitution
@@ -24,11 +28,7 @@ def poses(k):
     out = []
     for i in range(k):
         T = np.tile(np.eye(4), (2, 1, 1))
-        a = rng.normal(size=3)
-        a /= np.linalg.norm(a)
-        K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-        t = 0.3 * i
-        T[1, :3, :3] = (1 + 0.05 * i) * (np.eye(3) + np.sin(t) * K + (1 - np.cos(t)) * K @ K)
+        T[1, :3, :3] = (1 + 0.05 * i) * rotation(rng.normal(size=3), 0.3 * i)
         T[1, :3, 3] = rng.normal(size=3)
         out.append(T if i % 3 else T[:, :3, :3].copy())  # (k,3,3) too: its lazy factor
     return out
@@ -61,7 +61,8 @@ print("wrong", sum(wrong))
 
 
 def test_concurrent_deforms_match_serial_and_never_hang():
-    rc, out, err = run_isolated(CONCURRENT, timeout=300)
+    code = CONCURRENT.replace("{tests!r}", repr(str(Path(__file__).parent)))
+    rc, out, err = run_isolated(code, timeout=300)
     assert rc is not None, "concurrent deform() calls hung"
     assert rc == 0, f"crashed or failed (rc {rc}): {err[-2000:]}"
     assert out.split()[-2:] == ["wrong", "0"], out

@@ -10,19 +10,6 @@ from conftest import affine, rotation
 import matdeform as md
 
 
-def _anchor_positions(v, f, anchors, T):
-    """Anchor vertices and where they go: each follows its anchor's 4x4 (mean when shared)."""
-    owner = {}
-    for a, fa in enumerate(anchors):
-        for vi in np.unique(f[fa]):
-            owner.setdefault(int(vi), []).append(a)
-    fixed = np.array(sorted(owner))
-    pos = np.array(
-        [np.mean([T[a, :3, :3] @ v[i] + T[a, :3, 3] for a in owner[int(i)]], axis=0) for i in fixed]
-    )
-    return fixed, pos
-
-
 def _setup(small_tube, seed=3):
     v, f, lo, hi = small_tube
     rng = np.random.default_rng(seed)
@@ -38,7 +25,7 @@ SNAP = 1e-6  # the core's kSimilarityTolerance (transforms.hpp)
 def _dense(v, f, anchors, shear, T, snap=0.0):
     W = reference.weights(len(f), reference.dual_pairs(f), md.bend_from_shear(f, shear), anchors)
     Tf = reference.polar_blend(T[:, :3, :3], W, snap)
-    fixed, pos = _anchor_positions(v, f, anchors, T)
+    fixed, pos = reference.follow_positions(v, f, anchors, T)
     return reference.reposition(v, f, shear, Tf, fixed, pos)
 
 
@@ -107,5 +94,5 @@ def test_general_blend_agrees_with_the_per_face_blend(small_tube, scales):
     W = d.weights
     Tf = reference.polar_blend(T[:, :3, :3], W, SNAP)
     np.testing.assert_allclose(d.face_transforms, Tf, atol=1e-10)
-    fixed, pos = _anchor_positions(v, f, anchors, T)
+    fixed, pos = reference.follow_positions(v, f, anchors, T)
     np.testing.assert_allclose(X, reference.reposition(v, f, shear, Tf, fixed, pos), atol=1e-9)

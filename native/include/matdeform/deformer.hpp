@@ -64,6 +64,9 @@ class MaterialDeformer {
   int num_anchors() const { return static_cast<int>(anchors_.size()); }
   bool anisotropic() const { return axis_weights_.size() == 3; }
   int num_region_vertices() const { return static_cast<int>(sub_vertices_.size()); }
+  // Threads the last deform()'s back-substitution ran on (1 = serial, 0 before the first call).
+  // For tests that must reach the parallel path.
+  int substitution_threads() const;
 
  private:
   const PoissonRepositioner& repositioner(bool follow) const;
@@ -90,6 +93,7 @@ class MaterialDeformer {
   // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the
   // per-pose path never stores all m transforms.
   mutable std::vector<TransformLog> last_logs_;
+  mutable int last_substitution_threads_ = 0;
   // Guards free_, last_logs_ and the repositioners' workspaces.
   mutable std::mutex mutex_;
 };

@@ -46,6 +46,9 @@ class PoissonRepositioner {
 
   const std::vector<int>& fixed() const { return fixed_; }
   int num_unknowns() const;
+  // Threads the last solve()'s back-substitution ran on (1 = serial, 0 before the first solve
+  // or with nothing to solve for). For tests: the parallel path is only taken on large meshes.
+  int substitution_threads() const;
 
  private:
   struct Impl;
