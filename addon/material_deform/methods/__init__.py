@@ -117,4 +117,6 @@ def enum_items() -> list[tuple[str, str, str, int]]:
     return [(m.key, m.label, m.description, m.number) for m in _methods.values()]
 
 
-from . import material  # noqa: E402, F401  (registers itself)
+# registration order is the menu's order; the first method is the default
+from . import material  # noqa: E402, F401, I001  (registers itself)
+from . import edge  # noqa: E402, F401  (registers itself)
