@@ -335,3 +335,17 @@ def test_bake_runs_every_frame_to_convergence_warm_started():
         assert np.abs(co(baked[0].data) - want).max() < 1e-4 * d.diagonal
     assert min(used) > 20
     assert warm < used[-1]  # frame 4 from frame 3's result, not from rest
+
+
+def test_settling_stops_at_settle_max_when_the_tolerance_is_out_of_reach():
+    obj, left, right = sheet()
+    e = obj.material_deform.edge
+    e.live_iterations, e.tolerance, e.settle_iterations = 3, 1e-15, 12
+    bind(obj)
+    pose(left, right)
+    update()
+    calls = 0
+    while session.unsettled() and calls < 100:
+        handlers._keep_settling()
+        calls += 1
+    assert not session.unsettled() and calls == 3  # 3 + 3 x 3 = 12 iterations, then it stops

@@ -402,7 +402,17 @@ class EdgeMethod(Method):
             relaxation=p["relaxation"],
         )
         state["x"] = x
-        done = budget is None or d.last_move < p["tol"] or p["tol"] == 0.0
+        # live iterations spent on this very pose and these settings: a pose that never meets
+        # the tolerance (a two-cycle, docs/edge.md) stops the settling timer at Settle Max
+        key = t.tobytes() + repr(sorted((k, np.asarray(v).tolist()) for k, v in p.items())).encode()
+        spent = (state.get("spent", 0) if state.get("pose_key") == key else 0) + d.last_iterations
+        state["pose_key"], state["spent"] = key, spent
+        done = (
+            budget is None
+            or d.last_move < p["tol"]
+            or p["tol"] == 0.0
+            or spent >= p["settle_iterations"]
+        )
         return Result(x, done)
 
     def check_live(self, obj, entry, depsgraph) -> None:
