@@ -3,6 +3,8 @@
 - a tapered tentacle whose stiffness follows its girth (paper Fig. 1/10) and a bar with a stiff
   middle (Fig. 4), each deformed twice by the same Empty moves: uniform material (left) vs
   material-aware (right): out/demo.blend, out/demo.png;
+- Edge-based: a sheet pinned at two corners hanging under gravity, Stretch (lambda) from
+  membrane to cloth, side by side: out/demo_edge.blend, out/demo_edge.png;
 - Pose space: a tentacle with two example shape keys (curled up with a bulging muscle, bent
   sideways), posed through the add-on by dragging its tip Empty between and beyond them:
   out/demo_pose_space.blend, out/demo_pose_space_addon.png.
@@ -355,6 +357,104 @@ def camera_and_light_pose_space(scene):
             ob.rotation_euler = cam.rotation_euler
 
 
+SHEET_STRETCH = ((2e-4, "membrane"), (1e-3, ""), (1e-2, ""), (1e-1, "cloth"))
+
+
+def grid_sheet(name, n, location):
+    """An n x n quad sheet, 1 x 1, in the z = 0 plane of its object."""
+    verts = [(i / n, j / n, 0.0) for j in range(n + 1) for i in range(n + 1)]
+    faces = [
+        (j * (n + 1) + i, j * (n + 1) + i + 1, (j + 1) * (n + 1) + i + 1, (j + 1) * (n + 1) + i)
+        for j in range(n)
+        for i in range(n)
+    ]
+    me = bpy.data.meshes.new(name)
+    me.from_pydata(verts, [], faces)
+    obj = bpy.data.objects.new(name, me)
+    obj.location = location
+    bpy.context.scene.collection.objects.link(obj)
+    return obj
+
+
+def sheet_color(obj):
+    """Colour by edge strain (blue: rest length, red: +50 %), from the settled shape key."""
+    me = obj.data
+    rest = [v.co.copy() for v in me.vertices]
+    key = me.shape_keys.key_blocks["Material Deform"].data
+    strain = [0.0] * len(me.vertices)
+    count = [0] * len(me.vertices)
+    for e in me.edges:
+        a, b = e.vertices
+        s = (key[a].co - key[b].co).length / (rest[a] - rest[b]).length - 1.0
+        for v in (a, b):
+            strain[v] += s
+            count[v] += 1
+    attr = me.color_attributes.new("md_strain", "FLOAT_COLOR", "POINT")
+    for i, (s, c) in enumerate(zip(strain, count, strict=True)):
+        t = max(0.0, min(1.0, s / max(c, 1) / 0.5))
+        attr.data[i].color = (0.25 + 0.7 * t, 0.35 * (1 - t) + 0.2, 0.9 * (1 - t) + 0.1, 1.0)
+    me.color_attributes.active_color = attr
+    mat = bpy.data.materials.new(f"{obj.name} strain")
+    mat.use_nodes = True
+    nt = mat.node_tree
+    node = nt.nodes.new("ShaderNodeAttribute")
+    node.attribute_name = "md_strain"
+    nt.links.new(node.outputs["Color"], nt.nodes.get("Principled BSDF").inputs["Base Color"])
+    me.materials.append(mat)
+
+
+def build_sheets():
+    """A 40 x 40 sheet pinned at the two corner faces of its back side, the pins moved 30 %
+    closer together, settled under the same gravity for each Stretch (bend 1)."""
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    n = 40
+    h = 1.0 - 1.0 / n
+    for i, (lam, name) in enumerate(SHEET_STRETCH):
+        obj = grid_sheet(f"Sheet lambda {lam:g}", n, (1.6 * i, 0.0, 0.0))
+        left = add_anchor(obj, lambda p: p.center.x < 1.0 / n and p.center.y > h)
+        right = add_anchor(obj, lambda p: p.center.x > h and p.center.y > h)
+        s = obj.material_deform
+        s.method = "EDGE"
+        e = s.edge
+        e.stretch, e.bend = lam, 1.0
+        e.gravity_strength = 1.2  # scene gravity direction (down)
+        e.settle_iterations, e.tolerance = 20000, 1e-6
+        activate(obj)
+        assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+        s.live = False  # settle once below, not per Empty move
+        left.empty.location.x += 0.15
+        right.empty.location.x -= 0.15
+        bpy.context.view_layer.update()
+        activate(obj)
+        assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+        sheet_color(obj)
+        label(f"lambda {lam:g}" + (f" ({name})" if name else ""), (1.6 * i + 0.5, 1.0, 0.25))
+    for ob in scene.objects:
+        if ob.type == "EMPTY":
+            ob.empty_display_size = 0.08
+        if ob.type == "FONT":
+            ob.data.size = 0.16
+    cam_data = bpy.data.cameras.new("Camera")
+    cam_data.type = "ORTHO"
+    cam_data.ortho_scale = 6.8
+    cam = bpy.data.objects.new("Camera", cam_data)
+    cam.location = (2.9, -9.0, -0.3)
+    cam.rotation_euler = (math.radians(88), 0, 0)
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
+    sun.rotation_euler = (0.9, 0.2, -0.4)
+    sun.data.energy = 3.0
+    scene.collection.objects.link(sun)
+    world = bpy.data.worlds.new("World")
+    world.color = (0.8, 0.8, 0.8)
+    scene.world = world
+    scene.render.resolution_x, scene.render.resolution_y = 1600, 560
+    scene.render.resolution_percentage = 100
+    return scene
+
+
 def main():
     OUT.mkdir(exist_ok=True)
     enable_addon()
@@ -364,6 +464,11 @@ def main():
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     engine = render(scene, OUT / "demo.png")
     print(f"DEMO OK: {blend} and {OUT / 'demo.png'} ({engine})")
+    scene = build_sheets()
+    blend = OUT / "demo_edge.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    engine = render(scene, OUT / "demo_edge.png")
+    print(f"DEMO OK: {blend} and {OUT / 'demo_edge.png'} ({engine})")
 
     scene = build_pose_space()
     camera_and_light_pose_space(scene)

@@ -117,5 +117,7 @@ def enum_items() -> list[tuple[str, str, str, int]]:
     return [(m.key, m.label, m.description, m.number) for m in _methods.values()]
 
 
+# registration order is the menu's order; the first method is the default
 from . import material  # noqa: E402, F401, I001  (registers itself)
+from . import edge  # noqa: E402, F401  (registers itself)
 from . import pose_space  # noqa: E402, F401  (registers itself)
