@@ -698,7 +698,10 @@ class PositionSolver {
 // first (vertices by position, faces by their sorted canonical corners) so the coarse mesh does
 // not depend on how the caller numbered vertices and faces. meshopt_simplify keeps a subset of
 // the original vertices, so coarse vertices are dense vertices.
-void simplify_mesh(const Vertices& V, const Faces& F, int target_faces,
+// `jitter` > 0 moves the positions meshopt sees (not the coarse vertices) by up to jitter x the
+// mean edge length, by a hash of the position (so still numbering independent): on a flat
+// region or a straight crease that gives collapses a cost and meshopt's flip test a normal.
+void simplify_mesh(const Vertices& V, const Faces& F, int target_faces, double jitter,
                    std::vector<int>* coarse_vertices, Faces* coarse_faces) {
   const int n = static_cast<int>(V.rows()), m = static_cast<int>(F.rows());
   std::vector<int> order(n);
@@ -721,6 +724,20 @@ void simplify_mesh(const Vertices& V, const Faces& F, int target_faces,
     tri[f] = {t[s], t[(s + 1) % 3], t[(s + 2) % 3]};  // same orientation, smallest corner first
   }
   std::sort(tri.begin(), tri.end());
+  if (jitter > 0.0) {
+    double mean_edge = 0.0;
+    for (int f = 0; f < m; ++f)
+      for (int c = 0; c < 3; ++c) mean_edge += (V.row(F(f, c)) - V.row(F(f, (c + 1) % 3))).norm();
+    mean_edge /= 3.0 * m;
+    for (int i = 0; i < n; ++i) {
+      const Vec3 p = V.row(order[i]).transpose();
+      for (int c = 0; c < 3; ++c) {
+        double h = std::sin(p.dot(Vec3(12.9898 + c, 78.233 - c, 37.719 + 2 * c))) * 43758.5453;
+        h -= std::floor(h);
+        pos[3 * i + c] += static_cast<float>(jitter * mean_edge * (h - 0.5));
+      }
+    }
+  }
   std::vector<unsigned> idx(static_cast<size_t>(3) * m), out(static_cast<size_t>(3) * m);
   for (int f = 0; f < m; ++f)
     for (int c = 0; c < 3; ++c) idx[3 * f + c] = tri[f][c];
@@ -939,22 +956,25 @@ int remove_valence3(const Vertices& V, Faces* F, double min_area2) {
 }
 
 // The coarse level: simplify, clear flat faces (folds, flips, valence-3 vertices, repeated while
-// any of them changes something), drop vertices no face uses, then flip slivers. meshoptimizer
-// is deterministic, so when flat faces remain a few nearby targets are tried in a fixed order;
-// if all fail the bind fails (a degenerate face is never returned).
+// any of them changes something), drop vertices no face uses, then flip slivers. When a flat
+// face or a non-manifold edge remains (meshopt folds flat regions over themselves once it has
+// made a zero-area face), simplify again with jittered positions, then at nearby targets, in a
+// fixed order; if all fail the bind fails (a degenerate face is never returned).
 void coarse_mesh(const Vertices& V, const Faces& F, int target, double diag,
                  std::vector<int>* coarse_vertices, Vertices* coarse_rest, Faces* coarse_faces) {
   const int m = static_cast<int>(F.rows());
   const double min_area2 = 1e-12 * diag * diag;
   for (int attempt = 0; attempt < 7; ++attempt) {
-    const int step = (attempt + 1) / 2, sign = attempt % 2 ? 1 : -1;
+    // target, then target, target + 2 %, - 2 %, + 4 %, - 4 %, + 6 % with jitter
+    const int step = attempt / 2, sign = attempt % 2 ? -1 : 1;
     const int t = std::clamp(target + sign * step * std::max(1, target / 50), 4, m - 1);
-    simplify_mesh(V, F, t, coarse_vertices, coarse_faces);
+    simplify_mesh(V, F, t, attempt == 0 ? 0.0 : 0.01, coarse_vertices, coarse_faces);
     Vertices R = gather_rows(V, *coarse_vertices);
     Faces& CF = *coarse_faces;
     for (int round = 0; round < 50; ++round) {
-      if (unflatten_faces(R, &CF, min_area2) == 0) break;
-      if (remove_valence3(R, &CF, min_area2) + remove_folds(&CF) == 0) break;
+      int changed = remove_folds(&CF);  // meshopt's own folds, and any a fan removal made
+      if (unflatten_faces(R, &CF, min_area2) > 0) changed += remove_valence3(R, &CF, min_area2);
+      if (changed == 0) break;
     }
     // Drop vertices that lost all their faces (valence-3 removals, folds); the order is kept.
     std::vector<int> level(R.rows(), -1), kept;
@@ -971,15 +991,23 @@ void coarse_mesh(const Vertices& V, const Faces& F, int target, double diag,
     *coarse_vertices = kept;
     *coarse_rest = gather_rows(V, kept);
     flip_slivers(*coarse_rest, &CF);
+    // Valid: no flat face, and no edge on more than two faces (meshopt can leave those too).
     bool ok = CF.rows() >= 4;
+    std::map<std::pair<int, int>, int> edge_count;
     for (Eigen::Index f = 0; ok && f < CF.rows(); ++f) {
-      ok =
-          !flat_face(coarse_rest->row(CF(f, 0)).transpose(), coarse_rest->row(CF(f, 1)).transpose(),
-                     coarse_rest->row(CF(f, 2)).transpose(), min_area2);
+      for (int k = 0; k < 3; ++k) {
+        const int a = CF(f, k), b = CF(f, (k + 1) % 3);
+        ok = ok && ++edge_count[{std::min(a, b), std::max(a, b)}] <= 2;
+      }
+      ok = ok && !flat_face(coarse_rest->row(CF(f, 0)).transpose(),
+                            coarse_rest->row(CF(f, 1)).transpose(),
+                            coarse_rest->row(CF(f, 2)).transpose(), min_area2);
     }
     if (ok) return;
   }
-  fail("coarse: the simplified mesh has a degenerate face; choose another face count");
+  fail(
+      "coarse: the simplified mesh has a degenerate face or a non-manifold edge; choose another "
+      "face count");
 }
 }  // namespace
 
