@@ -837,7 +837,7 @@ int unflatten_faces(const Vertices& V, Faces* F, double min_area2) {
     return flat_face(P((*F)(f, 0)), P((*F)(f, 1)), P((*F)(f, 2)), min_area2);
   };
   int left = 0;
-  for (int pass = 0; pass < 4 * m + 1; ++pass) {
+  for (int pass = 0; pass < 200; ++pass) {  // a run of k collinear faces takes k passes
     std::map<std::pair<int, int>, std::array<int, 2>> edge_faces;
     for (int f = 0; f < m; ++f)
       for (int k = 0; k < 3; ++k) {
