@@ -6,6 +6,7 @@
 #include <Eigen/Geometry>
 #include <Eigen/SparseCore>
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -697,7 +698,10 @@ class PositionSolver {
 // first (vertices by position, faces by their sorted canonical corners) so the coarse mesh does
 // not depend on how the caller numbered vertices and faces. meshopt_simplify keeps a subset of
 // the original vertices, so coarse vertices are dense vertices.
-void simplify_mesh(const Vertices& V, const Faces& F, int target_faces,
+// `jitter` > 0 moves the positions meshopt sees (not the coarse vertices) by up to jitter x the
+// mean edge length, by a hash of the position (so still numbering independent): on a flat
+// region or a straight crease that gives collapses a cost and meshopt's flip test a normal.
+void simplify_mesh(const Vertices& V, const Faces& F, int target_faces, double jitter,
                    std::vector<int>* coarse_vertices, Faces* coarse_faces) {
   const int n = static_cast<int>(V.rows()), m = static_cast<int>(F.rows());
   std::vector<int> order(n);
@@ -720,6 +724,20 @@ void simplify_mesh(const Vertices& V, const Faces& F, int target_faces,
     tri[f] = {t[s], t[(s + 1) % 3], t[(s + 2) % 3]};  // same orientation, smallest corner first
   }
   std::sort(tri.begin(), tri.end());
+  if (jitter > 0.0) {
+    double mean_edge = 0.0;
+    for (int f = 0; f < m; ++f)
+      for (int c = 0; c < 3; ++c) mean_edge += (V.row(F(f, c)) - V.row(F(f, (c + 1) % 3))).norm();
+    mean_edge /= 3.0 * m;
+    for (int i = 0; i < n; ++i) {
+      const Vec3 p = V.row(order[i]).transpose();
+      for (int c = 0; c < 3; ++c) {
+        double h = std::sin(p.dot(Vec3(12.9898 + c, 78.233 - c, 37.719 + 2 * c))) * 43758.5453;
+        h -= std::floor(h);
+        pos[3 * i + c] += static_cast<float>(jitter * mean_edge * (h - 0.5));
+      }
+    }
+  }
   std::vector<unsigned> idx(static_cast<size_t>(3) * m), out(static_cast<size_t>(3) * m);
   for (int f = 0; f < m; ++f)
     for (int c = 0; c < 3; ++c) idx[3 * f + c] = tri[f][c];
@@ -800,6 +818,197 @@ void flip_slivers(const Vertices& V, Faces* F) {
   }
 }
 
+// Zero-area coarse faces. On a flat region or along a straight crease a collapse costs no
+// quadric error, and meshoptimizer's flip test (in float) lets it leave three collinear corners.
+// Such a face (a, b, c) has c on its longest edge (a, b); flipping (a, b) splits the neighbour
+// (b, a, d) at c into (c, a, d) and (c, d, b), which is the surface that is there. The
+// degenerate face has no normal, so the neighbour's normal judges the flip. A run of collinear
+// faces clears from its end, one flip a pass. Returns the faces that stay flat.
+bool flat_face(const Vec3& p, const Vec3& q, const Vec3& r, double min_area2) {
+  const double a2 = (q - p).cross(r - p).norm();
+  const double l2 = std::max({(q - p).squaredNorm(), (r - q).squaredNorm(), (p - r).squaredNorm()});
+  return !(a2 > 1e-6 * l2) || !(a2 > min_area2);
+}
+
+int unflatten_faces(const Vertices& V, Faces* F, double min_area2) {
+  const int m = static_cast<int>(F->rows());
+  auto P = [&](int v) { return Vec3(V.row(v).transpose()); };
+  auto flat = [&](int f) {
+    return flat_face(P((*F)(f, 0)), P((*F)(f, 1)), P((*F)(f, 2)), min_area2);
+  };
+  int left = 0;
+  for (int pass = 0; pass < 200; ++pass) {  // a run of k collinear faces takes k passes
+    std::map<std::pair<int, int>, std::array<int, 2>> edge_faces;
+    for (int f = 0; f < m; ++f)
+      for (int k = 0; k < 3; ++k) {
+        const int a = (*F)(f, k), b = (*F)(f, (k + 1) % 3);
+        auto it =
+            edge_faces.try_emplace({std::min(a, b), std::max(a, b)}, std::array<int, 2>{f, -1});
+        if (!it.second) it.first->second[1] = it.first->second[1] < 0 ? f : m;  // m: non-manifold
+      }
+    std::vector<char> touched(m, 0);
+    int flips = 0;
+    left = 0;
+    for (int f = 0; f < m; ++f) {
+      if (!flat(f)) continue;
+      ++left;
+      if (touched[f]) continue;
+      int k = 0;  // longest edge (a, b) = corners (k, k + 1)
+      double best = -1.0;
+      for (int j = 0; j < 3; ++j) {
+        const double l = (P((*F)(f, (j + 1) % 3)) - P((*F)(f, j))).squaredNorm();
+        if (l > best) best = l, k = j;
+      }
+      const int a = (*F)(f, k), b = (*F)(f, (k + 1) % 3), c = (*F)(f, (k + 2) % 3);
+      const auto& pair = edge_faces.at({std::min(a, b), std::max(a, b)});
+      const int g = pair[0] == f ? pair[1] : pair[0];
+      if (g < 0 || g >= m || touched[g] || flat(g)) continue;
+      int d = -1;
+      for (int j = 0; j < 3; ++j)
+        if ((*F)(g, j) != a && (*F)(g, j) != b) d = (*F)(g, j);
+      if (d < 0 || d == c || edge_faces.count({std::min(c, d), std::max(c, d)})) continue;
+      const Vec3 ng =
+          (P((*F)(g, 1)) - P((*F)(g, 0))).cross(P((*F)(g, 2)) - P((*F)(g, 0))).normalized();
+      const Vec3 n1 = (P(a) - P(c)).cross(P(d) - P(c)), n2 = (P(d) - P(c)).cross(P(b) - P(c));
+      if (flat_face(P(c), P(a), P(d), min_area2) || flat_face(P(c), P(d), P(b), min_area2) ||
+          n1.normalized().dot(ng) < 0.8660254037844386 ||
+          n2.normalized().dot(ng) < 0.8660254037844386)
+        continue;
+      F->row(f) << c, a, d;
+      F->row(g) << c, d, b;
+      touched[f] = touched[g] = 1;
+      ++flips;
+    }
+    if (flips == 0) break;
+  }
+  return left;
+}
+
+// Pairs of faces on the same three corners with opposite orientation (a fold meshoptimizer can
+// leave around a vertex of valence two) enclose no surface: both go. Returns the count removed.
+int remove_folds(Faces* F) {
+  const int m = static_cast<int>(F->rows());
+  std::map<std::array<int, 3>, std::vector<int>> by_corners;
+  for (int f = 0; f < m; ++f) {
+    std::array<int, 3> key = {(*F)(f, 0), (*F)(f, 1), (*F)(f, 2)};
+    std::sort(key.begin(), key.end());
+    by_corners[key].push_back(f);
+  }
+  std::vector<char> drop(m, 0);
+  int removed = 0;
+  for (const auto& [key, fs] : by_corners) {
+    if (fs.size() < 2) continue;
+    for (int f : fs) drop[f] = 1;
+    removed += static_cast<int>(fs.size());
+  }
+  if (removed == 0) return 0;
+  Faces kept(m - removed, 3);
+  for (int f = 0, k = 0; f < m; ++f)
+    if (!drop[f]) kept.row(k++) = F->row(f);
+  *F = kept;
+  return removed;
+}
+
+// A corner of a flat face with exactly three faces around it (a closed fan) is dropped: its
+// fan becomes the one triangle on its three neighbours, when that triangle is not flat and keeps
+// the fan's orientation. This clears a flat face whose flip would duplicate an edge.
+int remove_valence3(const Vertices& V, Faces* F, double min_area2) {
+  const int m = static_cast<int>(F->rows());
+  auto P = [&](int v) { return Vec3(V.row(v).transpose()); };
+  std::vector<std::vector<int>> vf(V.rows());
+  for (int f = 0; f < m; ++f)
+    for (int k = 0; k < 3; ++k) vf[(*F)(f, k)].push_back(f);
+  std::vector<char> touched(m, 0), drop(m, 0);
+  int removed = 0;
+  for (int f = 0; f < m; ++f) {
+    if (touched[f] || !flat_face(P((*F)(f, 0)), P((*F)(f, 1)), P((*F)(f, 2)), min_area2)) continue;
+    for (int k = 0; k < 3; ++k) {
+      const int v = (*F)(f, k);
+      const auto& fs = vf[v];
+      if (fs.size() != 3 || touched[fs[0]] || touched[fs[1]] || touched[fs[2]]) continue;
+      // next[x] = y for each fan face (v, x, y); a closed fan is one 3-cycle.
+      std::map<int, int> next;
+      Vec3 n_old = Vec3::Zero();
+      for (int g : fs) {
+        int j = 0;
+        while ((*F)(g, j) != v) ++j;
+        next[(*F)(g, (j + 1) % 3)] = (*F)(g, (j + 2) % 3);
+        n_old += (P((*F)(g, 1)) - P((*F)(g, 0))).cross(P((*F)(g, 2)) - P((*F)(g, 0)));
+      }
+      if (next.size() != 3) continue;
+      const int x0 = next.begin()->first, x1 = next[x0], x2 = next.count(x1) ? next[x1] : -1;
+      if (x2 < 0 || !next.count(x2) || next[x2] != x0) continue;
+      const Vec3 n = (P(x1) - P(x0)).cross(P(x2) - P(x0));
+      if (flat_face(P(x0), P(x1), P(x2), min_area2) || n.dot(n_old) <= 0.0) continue;
+      F->row(fs[0]) << x0, x1, x2;
+      drop[fs[1]] = drop[fs[2]] = 1;
+      for (int g : fs) touched[g] = 1;
+      removed += 1;
+      break;
+    }
+  }
+  if (removed == 0) return 0;
+  Faces kept(m - 2 * removed, 3);
+  for (int f = 0, k = 0; f < m; ++f)
+    if (!drop[f]) kept.row(k++) = F->row(f);
+  *F = kept;
+  return removed;
+}
+
+// The coarse level: simplify, clear flat faces (folds, flips, valence-3 vertices, repeated while
+// any of them changes something), drop vertices no face uses, then flip slivers. When a flat
+// face or a non-manifold edge remains (meshopt folds flat regions over themselves once it has
+// made a zero-area face), simplify again with jittered positions, then at nearby targets, in a
+// fixed order; if all fail the bind fails (a degenerate face is never returned).
+void coarse_mesh(const Vertices& V, const Faces& F, int target, double diag,
+                 std::vector<int>* coarse_vertices, Vertices* coarse_rest, Faces* coarse_faces) {
+  const int m = static_cast<int>(F.rows());
+  const double min_area2 = 1e-12 * diag * diag;
+  for (int attempt = 0; attempt < 7; ++attempt) {
+    // target, then target, target + 2 %, - 2 %, + 4 %, - 4 %, + 6 % with jitter
+    const int step = attempt / 2, sign = attempt % 2 ? -1 : 1;
+    const int t = std::clamp(target + sign * step * std::max(1, target / 50), 4, m - 1);
+    simplify_mesh(V, F, t, attempt == 0 ? 0.0 : 0.01, coarse_vertices, coarse_faces);
+    Vertices R = gather_rows(V, *coarse_vertices);
+    Faces& CF = *coarse_faces;
+    for (int round = 0; round < 50; ++round) {
+      int changed = remove_folds(&CF);  // meshopt's own folds, and any a fan removal made
+      if (unflatten_faces(R, &CF, min_area2) > 0) changed += remove_valence3(R, &CF, min_area2);
+      if (changed == 0) break;
+    }
+    // Drop vertices that lost all their faces (valence-3 removals, folds); the order is kept.
+    std::vector<int> level(R.rows(), -1), kept;
+    for (Eigen::Index f = 0; f < CF.rows(); ++f)
+      for (int k = 0; k < 3; ++k) level[CF(f, k)] = 0;
+    for (Eigen::Index i = 0; i < R.rows(); ++i) {
+      if (level[i] == 0) {
+        level[i] = static_cast<int>(kept.size());
+        kept.push_back((*coarse_vertices)[i]);
+      }
+    }
+    for (Eigen::Index f = 0; f < CF.rows(); ++f)
+      for (int k = 0; k < 3; ++k) CF(f, k) = level[CF(f, k)];
+    *coarse_vertices = kept;
+    *coarse_rest = gather_rows(V, kept);
+    flip_slivers(*coarse_rest, &CF);
+    // Valid: no flat face, and no edge on more than two faces (meshopt can leave those too).
+    bool ok = CF.rows() >= 4;
+    std::map<std::pair<int, int>, int> edge_count;
+    for (Eigen::Index f = 0; ok && f < CF.rows(); ++f) {
+      for (int k = 0; k < 3; ++k) {
+        const int a = CF(f, k), b = CF(f, (k + 1) % 3);
+        ok = ok && ++edge_count[{std::min(a, b), std::max(a, b)}] <= 2;
+      }
+      ok = ok && !flat_face(coarse_rest->row(CF(f, 0)).transpose(),
+                            coarse_rest->row(CF(f, 1)).transpose(),
+                            coarse_rest->row(CF(f, 2)).transpose(), min_area2);
+    }
+    if (ok) return;
+  }
+  fail(
+      "coarse: the simplified mesh has a degenerate face or a non-manifold edge; choose another "
+      "face count");
+}
 }  // namespace
 
 // ------------------------------------------------------------------------------------------
@@ -1339,17 +1548,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
            std::to_string(target));
     }
     I.multires = true;
-    simplify_mesh(vertices, faces, target, &I.lvertices, &I.lfaces);
-    I.lrest = gather_rows(vertices, I.lvertices);
-    flip_slivers(I.lrest, &I.lfaces);
-    {
-      const Eigen::VectorXd a2 = double_areas(I.lrest, I.lfaces);
-      for (Eigen::Index f = 0; f < a2.size(); ++f) {
-        if (!(a2(f) > 1e-12 * I.diag * I.diag)) {
-          fail("coarse: the simplified mesh has a degenerate face; choose another face count");
-        }
-      }
-    }
+    coarse_mesh(vertices, faces, target, I.diag, &I.lvertices, &I.lrest, &I.lfaces);
   } else {
     I.lrest = vertices;
     I.lfaces = faces;
