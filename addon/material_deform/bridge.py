@@ -499,7 +499,10 @@ def world_matrix(obj, depsgraph=None):
         if not ev.is_evaluated:
             return None
         obj = ev
-    return np.array(obj.matrix_world, dtype=np.float64)
+    m = obj.matrix_world
+    # Row by row: np.array(Matrix) goes through the sequence protocol entry by entry, 4-8x
+    # slower (15 us against 3.5 us on bpy 4.5), and the live path reads k + 1 of these.
+    return np.array((m[0][:], m[1][:], m[2][:], m[3][:]), dtype=np.float64)
 
 
 def object_in_scene(obj, scene) -> bool:
