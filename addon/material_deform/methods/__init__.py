@@ -118,3 +118,4 @@ def enum_items() -> list[tuple[str, str, str, int]]:
 
 
 from . import material  # noqa: E402, F401  (registers itself)
+from . import pyramid as _pyramid  # noqa: E402, F401  (registers itself)
