@@ -13,7 +13,7 @@ runs), and its result compared with a tight reference (tol 1e-12) to show how fa
 rule leaves it from the fixed point. Sweeps per second come from fixed 50-sweep runs.
 
     python bench/bench_pyramid.py [--repeats 3] [--threads 1 2] [--poses 1 2 ...] [--plot PNG]
-                                  [--stretch on|off]   (off: the add-on's default)
+                                  [--stretch on|off] [--addon]
 """
 
 from __future__ import annotations
@@ -198,6 +198,36 @@ def plot_moves(b: Bench, path: Path) -> None:
     print(f"wrote {path}")
 
 
+def addon_table(sets, idx, repeats) -> None:
+    """What the add-on's settings give: sweeps to tol 1e-5 (at most its 20000-sweep allowance)
+    with stretch off and on, the converge time, and one live update (30 sweeps, warm start)."""
+    print(
+        "| mesh | stretch | sweeps to tol 1e-5 per pose | converge median (ms) "
+        "| live update, 30 sweeps (ms) |"
+    )
+    print("|---|---|---|---:|---:|")
+    for name, v, f, ctrl, targets in sets:
+        d = md.PyramidDeformer(v, f, ctrl)
+        for st in (False, True):
+            sweeps, ts, live = [], [], []
+            for h in idx:
+                for _ in range(repeats):
+                    t0 = time.perf_counter()
+                    x = d.deform(targets[h], tol=TOL, stretch=st, iterations=20000)
+                    ts.append(time.perf_counter() - t0)
+                n = d.last_iterations
+                sweeps.append(str(n) if d.last_move < TOL else f">{n}")
+                for _ in range(repeats):
+                    t0 = time.perf_counter()
+                    x = d.deform(targets[h], iterations=30, initial=x, stretch=st)
+                    live.append(time.perf_counter() - t0)
+            print(
+                f"| {name} | {'on' if st else 'off'} | {' / '.join(sweeps)} | "
+                f"{statistics.median(ts) * 1e3:.0f} | {statistics.median(live) * 1e3:.1f} |",
+                flush=True,
+            )
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
@@ -211,6 +241,9 @@ def main() -> None:
         choices=("on", "off"),
         default="on",
         help="on: the library's default, off: the add-on's",
+    )
+    ap.add_argument(
+        "--addon", action="store_true", help="the add-on's table: stretch off/on, live update"
     )
     args = ap.parse_args()
     stretch = args.stretch == "on"
@@ -227,6 +260,9 @@ def main() -> None:
             f"thread(s), load average {os.getloadavg()[0]:.2f}, poses {args.poses}, "
             f"median of {args.repeats} runs per pose, stretch {args.stretch}*"
         )
+        if args.addon:
+            addon_table(sets, idx, args.repeats)
+            continue
         print(
             "| mesh | faces | controls | precompute (s) | sweeps to tol 1e-5 | converge median "
             "(ms) | slowest pose (ms) | gap to fixed point | sweeps/s (Anderson 20) "
