@@ -240,7 +240,7 @@ def main() -> None:
         "--stretch",
         choices=("on", "off"),
         default="on",
-        help="on: the library's default, off: the add-on's",
+        help="on: the default of the library and the add-on; off: unscaled weights",
     )
     ap.add_argument(
         "--addon", action="store_true", help="the add-on's table: stretch off/on, live update"
