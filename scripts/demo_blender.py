@@ -7,7 +7,9 @@
   membrane to cloth, side by side: out/demo_edge.blend, out/demo_edge.png;
 - Pose space: a tentacle with two example shape keys (curled up with a bulging muscle, bent
   sideways), posed through the add-on by dragging its tip Empty between and beyond them:
-  out/demo_pose_space.blend, out/demo_pose_space_addon.png.
+  out/demo_pose_space.blend, out/demo_pose_space_addon.png;
+- Pyramid coordinates: a tentacle and a bar posed with the anchor faces' vertices as the only
+  control vertices, no painting: out/demo_pyramid.blend, out/demo_pyramid_blender.png.
 
     blender -b --factory-startup --python scripts/demo_blender.py      (or scripts/demo_blender.sh)
 
@@ -209,13 +211,13 @@ def camera_and_light(scene):
     scene.render.resolution_percentage = 100
 
 
-def render(scene, path):
+def render(scene, path, color_type="VERTEX"):
     """Workbench (attribute colours) if it works headless here, else Cycles CPU."""
     scene.render.filepath = str(path)
     try:
         scene.render.engine = "BLENDER_WORKBENCH"
         scene.display.shading.light = "STUDIO"
-        scene.display.shading.color_type = "VERTEX"
+        scene.display.shading.color_type = color_type
         bpy.ops.render.render(write_still=True)
         if path.exists():
             return "workbench"
@@ -455,6 +457,65 @@ def build_sheets():
     return scene
 
 
+def build_pyramid():
+    """Rest (grey, left of each pair) and posed by pyramid coordinates (blue): only the anchor
+    faces' vertices are controlled (the tentacle's base cap and tip, the bar's two end caps),
+    the rest keeps its local shape."""
+    from material_deform import session
+
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    grey, blue = bpy.data.materials.new("Rest"), bpy.data.materials.new("Pyramid")
+    grey.diffuse_color, blue.diffuse_color = (0.6, 0.6, 0.6, 1), (0.25, 0.45, 0.85, 1)
+    r0, r1, length = 0.45, 0.06, 5.0
+
+    def radius(t):
+        return r0 + (r1 - r0) * t
+
+    posed = []
+    for i, kind in enumerate(("rest", "posed")):
+        obj = tube(f"Tentacle {kind}", radius, length, 60, 16, (-6.5 + 3.0 * i, 0, 0))
+        obj.data.materials.append(grey if kind == "rest" else blue)
+        if kind == "posed":
+            obj.material_deform.method = "PYRAMID"
+            ancs = [
+                add_anchor(obj, lambda p: p.center.z < 1e-4),
+                add_anchor(obj, lambda p: p.center.z > length - 0.2),
+            ]
+            posed.append((obj, ancs[1], ((2.2, 0.0, -1.2), 1.4)))
+    for i, kind in enumerate(("rest", "posed")):
+        obj = tube(f"Bar {kind}", lambda t: 0.4, 5.0, 41, 12, (1.5 + 3.0 * i, 0, 0))
+        obj.data.materials.append(grey if kind == "rest" else blue)
+        if kind == "posed":
+            obj.material_deform.method = "PYRAMID"
+            ancs = [
+                add_anchor(obj, lambda p: p.center.z < 1e-4),
+                add_anchor(obj, lambda p: p.center.z > 4.999),
+            ]
+            obj.material_deform.pyramid.stretch = True  # keeps the bar's girth (docs/pyramid.md)
+            posed.append((obj, ancs[1], ((1.2, 0.0, -0.6), math.pi / 3)))
+    for obj, tip, how in posed:
+        activate(obj)
+        assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+        obj.material_deform.live = False  # pose first, then one Settle (what a user clicks)
+        move(tip, *how)
+        activate(obj)
+        assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+        obj.material_deform.live = True
+        st = session.entry_for(obj, scene).state
+        n_ctrl = len(session.entry_for(obj, scene).solver.rest)
+        print(
+            f"{obj.name}: {n_ctrl} of {len(obj.data.vertices)} vertices controlled, "
+            f"{st.get('iterations')} sweeps, last move {st.get('move'):.1e} of the diagonal"
+        )
+    for x, text in ((-5.0, "tentacle: 2 anchors"), (3.0, "bar: 2 anchors")):
+        label(text, (x, -1.0, 5.7))
+    for ob in scene.objects:
+        if ob.type == "EMPTY":
+            ob.empty_display_size = 0.3
+    return scene
+
+
 def main():
     OUT.mkdir(exist_ok=True)
     enable_addon()
@@ -476,6 +537,14 @@ def main():
     bpy.ops.wm.save_as_mainfile(filepath=str(blend))
     png = OUT / "demo_pose_space_addon.png"
     engine = render(scene, png)
+    print(f"DEMO OK: {blend} and {png} ({engine})")
+
+    scene = build_pyramid()
+    camera_and_light(scene)
+    blend = OUT / "demo_pyramid.blend"
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    png = OUT / "demo_pyramid_blender.png"
+    engine = render(scene, png, color_type="MATERIAL")
     print(f"DEMO OK: {blend} and {png} ({engine})")
 
 

@@ -99,6 +99,17 @@ def settings_changed(obj, scene=None) -> None:
             _stale[key] = f"Check failed: {exc}"
 
 
+def resolve_live(obj) -> None:
+    """A live setting changed (one the bind does not depend on, e.g. an iterative method's
+    tolerance): the next live update solves the current pose again instead of skipping it."""
+    if not bridge.is_mesh(obj) or not settings(obj).bound:
+        return
+    entry = _cache.get(obj.as_pointer())
+    if entry is not None:
+        entry.last_key = None
+    obj.update_tag()
+
+
 def owner_of(obj, scene):
     """The mesh whose anchor (or anisotropy axes) ``obj`` drives, None if there is none: the
     panel and the object operators then act on that mesh while an Empty is selected."""

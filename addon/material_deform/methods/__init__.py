@@ -121,3 +121,4 @@ def enum_items() -> list[tuple[str, str, str, int]]:
 from . import material  # noqa: E402, F401, I001  (registers itself)
 from . import edge  # noqa: E402, F401  (registers itself)
 from . import pose_space  # noqa: E402, F401  (registers itself)
+from . import pyramid  # noqa: E402, F401  (registers itself)

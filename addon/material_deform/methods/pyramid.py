@@ -1,0 +1,181 @@
+"""Shape-preserving deformation with pyramid coordinates (Sheffer & Kraevoy):
+``matdeform.PyramidDeformer``.
+
+The anchors' faces give the control vertices; each is placed by its Empty's full transform
+(rest position moved by the anchor's motion since bind), and the rest of the mesh is found by
+iterating the local reconstructions. Iterative: a live update spends the per-update budget,
+warm-started from the previous result; Settle and Bake run to convergence. No stiffness: the
+painted stiffness is ignored (and not part of what this bind depends on beyond the session's
+common fingerprint). See docs/pyramid.md.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, FloatProperty, IntProperty
+
+from .. import anchor_math as am
+from ..model import BindError, load_core, settings
+from . import Method, Result, register_method
+
+
+def _live_changed(self, context):
+    """A live setting (no rebind): solve the current pose again with it."""
+    from .. import session  # late: session imports methods
+
+    session.resolve_live(self.id_data)
+
+
+class PyramidSettings(bpy.types.PropertyGroup):
+    live_iterations: IntProperty(
+        name="Iterations per Update",
+        description=(
+            "Sweeps spent on each live update; the mesh keeps settling after you stop dragging "
+            "(more: closer to the result while dragging, slower updates)"
+        ),
+        # the acceleration restarts with every update: below ~10 sweeps it has too little
+        # history and the plain sweeps can drift off on long thin parts (docs/pyramid.md)
+        default=30,
+        min=10,
+        soft_max=500,
+        update=_live_changed,
+    )
+    tolerance: FloatProperty(
+        name="Tolerance",
+        description=(
+            "Converged when no vertex moves more than this fraction of the mesh's "
+            "bounding-box diagonal in one sweep"
+        ),
+        default=1e-6,
+        min=1e-12,
+        max=1e-2,
+        precision=8,
+        step=0.0001,
+        update=_live_changed,
+    )
+    stretch: BoolProperty(
+        name="Stretch Correction",
+        description=(
+            "Scale the reconstruction weights by how much each edge is stretched (the paper's "
+            "correction): keeps edge lengths; try it off if a pose does not settle"
+        ),
+        # on: it converged on all cat poses measured, off missed two (docs/pyramid.md); off
+        # converged where it did not on a bar turned 0.8 rad
+        default=True,
+        update=_live_changed,
+    )
+    max_iterations: IntProperty(
+        name="Max Sweeps",
+        description=(
+            "Most sweeps spent on one pose (Settle, each baked frame, and the live updates "
+            "after a drag); stops there if it has not converged"
+        ),
+        default=20000,
+        min=10,
+        update=_live_changed,
+    )
+
+
+@dataclass
+class Solver:
+    deformer: object
+    rest: np.ndarray  # (k,3) rest positions of the control vertices (compacted order)
+    owner: np.ndarray  # (k,) the anchor that places each control vertex
+    diagonal: float
+
+
+def control_vertices(inputs) -> tuple[np.ndarray, np.ndarray]:
+    """(control vertex indices into the compacted mesh (k,), anchor of each (k,)): the vertices
+    of every anchor's faces, sorted. Anchors own disjoint faces, but may share a vertex where
+    their faces touch: that vertex goes to the first anchor."""
+    tris = inputs.arrays.tris
+    idx, owner = [], []
+    seen = set()
+    for a, faces in enumerate(inputs.anchor_faces):
+        for v in np.unique(tris[faces]):
+            if int(v) not in seen:
+                seen.add(int(v))
+                idx.append(int(v))
+                owner.append(a)
+    idx = np.asarray(idx, np.int64)
+    order = np.argsort(idx)
+    return inputs.compact_index(idx[order]), np.asarray(owner, np.int64)[order]
+
+
+class PyramidMethod(Method):
+    key = "PYRAMID"
+    number = 3
+    label = "Pyramid Coords"
+    description = (
+        "Sheffer and Kraevoy: shape-preserving pyramid coordinates. The anchor faces' vertices "
+        "are control vertices; the rest keeps its local shape (angles and projected lengths), "
+        "no stiffness painting (iterative: settles over several updates)"
+    )
+    anchor_modes = frozenset({am.POSITION})
+    iterative = True
+    settings_name = "pyramid"
+    settings_class = PyramidSettings
+
+    def build(self, inputs) -> Solver:
+        md = load_core()
+        control, owner = control_vertices(inputs)
+        verts = inputs.verts_c
+        try:
+            d = md.PyramidDeformer(verts, inputs.tris_c, control)
+        except (ValueError, RuntimeError) as exc:
+            raise BindError(f"Solver rejected the mesh: {exc}") from exc
+        return Solver(d, verts[control].copy(), owner, float(d.diagonal))
+
+    @staticmethod
+    def targets(solver: Solver, transforms: np.ndarray) -> np.ndarray:
+        """(k,3) control positions: each rest position moved by its anchor's (4,4) motion."""
+        t = np.asarray(transforms, np.float64)[solver.owner]
+        return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
+
+    def solve(self, solver, transforms, state, budget) -> Result:
+        # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
+        # before any live update: the defaults then)
+        tol, stretch, most = state.get("settings", (1e-6, True, 20000))
+        targets = self.targets(solver, transforms)
+        if not np.array_equal(targets, state.get("targets")):
+            state["spent"] = 0  # a new pose: a new allowance of sweeps
+        spent = state.get("spent", 0)
+        it = max(most - spent, 1) if budget is None else min(budget, max(most - spent, 1))
+        # Live updates warm-start from the last result. Settle and Bake start from the solver's
+        # own start (the controls' best-fit similarity of the rest mesh): the iteration has
+        # several fixed points, and warm starts from another frame reached a poorer one (edges
+        # 0.36-1.49x rest instead of 0.92-1.10x, docs/pyramid.md). So a baked frame depends on
+        # its pose only (a farm can bake frames in any order) and Settle equals the library.
+        x0 = None if budget is None else state.get("x")
+        d = solver.deformer
+        try:
+            x = d.deform(targets, iterations=it, tol=tol, initial=x0, stretch=stretch)
+        except RuntimeError as exc:  # overflow: keep the last good result
+            raise ValueError(f"pyramid iteration failed ({exc})") from None
+        state.update(x=x, targets=targets, iterations=d.last_iterations, move=d.last_move)
+        state["spent"] = spent + d.last_iterations
+        converged = bool(d.last_move < tol) or d.last_iterations < it
+        state["converged"] = converged
+        # out of sweeps for this pose: final (not converged) rather than updating forever
+        return Result(x, done=converged or state["spent"] >= most)
+
+    def live_budget(self, obj) -> int | None:
+        return int(settings(obj).pyramid.live_iterations)
+
+    def check_live(self, obj, entry, depsgraph) -> None:
+        """Hand the live settings to ``solve`` (which sees only the solver and its state)."""
+        p = settings(obj).pyramid
+        entry.state["settings"] = (float(p.tolerance), bool(p.stretch), int(p.max_iterations))
+
+    def draw(self, layout, obj) -> None:
+        p = settings(obj).pyramid
+        layout.prop(p, "live_iterations", text="Per Update")
+        layout.prop(p, "tolerance")
+        layout.prop(p, "max_iterations")
+        layout.prop(p, "stretch")
+
+
+register_method(PyramidMethod())

@@ -1,0 +1,362 @@
+"""The pyramid-coordinates method in the add-on (issue 14): the anchor faces' vertices are the
+control vertices, placed by their Empty's full transform; the result after Settle is the numpy
+library's on the same inputs; live updates spend a budget and keep settling; rest, rigid
+motions, bad input, the panel and undo."""
+
+import math
+
+import bpy
+import numpy as np
+import pytest
+from helpers import (
+    add_anchor,
+    anchor_vertices,
+    draw_panel,
+    expect_error,
+    output,
+    rest,
+    snapshot,
+    triangles,
+    tube,
+    two_end_anchors,
+    update,
+)
+from material_deform import handlers, methods, session
+from material_deform.core import load
+from mathutils import Euler, Matrix, Vector
+
+
+def pyramid_bar(rings=13, length=4.0):
+    obj = tube(rings=rings, length=length)
+    obj.material_deform.method = "PYRAMID"
+    top, bottom = two_end_anchors(obj, half_length=length / 2)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    return obj, top, bottom
+
+
+def compute(obj):
+    """Float64 positions the add-on computes now, run to convergence (what Settle writes)."""
+    return session.compute(obj, bpy.context.scene, budget=None)
+
+
+def library_result(obj, anchors, tol, stretch=True, initial=None):
+    """What matdeform.PyramidDeformer gives on the same mesh, controls and Empty motions."""
+    md = load()
+    tris, _ = triangles(obj)
+    v = rest(obj).astype(np.float64)
+    ctrl, targets = [], []
+    for anc in anchors:
+        m = np.array(anc.empty.matrix_world) @ np.linalg.inv(
+            np.array(tuple(anc.bind_matrix)).reshape(4, 4)
+        )
+        for i in anchor_vertices(obj, anc):
+            if i not in ctrl:
+                ctrl.append(int(i))
+                targets.append(m[:3, :3] @ v[i] + m[:3, 3])
+    order = np.argsort(ctrl)
+    d = md.PyramidDeformer(v, tris, np.asarray(ctrl)[order])
+    x = d.deform(np.asarray(targets)[order], tol=tol, stretch=stretch, initial=initial)
+    return x, d
+
+
+def diagonal(v):
+    return float(np.linalg.norm(v.max(axis=0) - v.min(axis=0)))
+
+
+def test_registered_as_the_fourth_method_with_its_saved_number():
+    m = methods.get("PYRAMID")
+    assert m.number == 3 and m.iterative
+    items = bpy.types.Object.bl_rna  # registered: the enum knows the key
+    assert items is not None
+    obj = tube()
+    obj.material_deform.method = "PYRAMID"
+    assert obj.material_deform.method == "PYRAMID"
+    p = obj.material_deform.pyramid
+    assert p.live_iterations >= 10 and 0 < p.tolerance < 1e-3 and p.stretch
+
+
+def test_settle_equals_the_numpy_library_on_the_same_inputs():
+    obj, top, bottom = pyramid_bar()
+    obj.material_deform.live = False  # no live update: Settle starts where the library does
+    obj.material_deform.pyramid.tolerance = 1e-9
+    top.empty.location = (0.8, 0.3, 2.4)
+    top.empty.rotation_euler = (0.3, 0.7, -0.2)
+    bottom.empty.rotation_euler = (0.0, -0.4, 0.1)
+    bottom.empty.scale = (1.1, 1.1, 1.1)
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    want, d = library_result(obj, (top, bottom), tol=1e-9)
+    got = compute(obj)  # the same computation again, in float64
+    diag = diagonal(rest(obj))
+    assert d.last_move < 1e-9
+    assert np.abs(got - want).max() < 1e-9 * diag
+    np.testing.assert_allclose(output(obj), want, atol=1e-6 * diag)  # the key, float32
+    assert np.abs(want - rest(obj)).max() > 0.5  # really posed
+
+
+def test_stretch_setting_reaches_the_solver():
+    obj, top, bottom = pyramid_bar()
+    obj.material_deform.live = False
+    obj.material_deform.pyramid.tolerance = 1e-9
+    obj.material_deform.pyramid.stretch = False
+    top.empty.location.x += 1.0
+    top.empty.rotation_euler.y = 0.6
+    update()
+    want_off, _ = library_result(obj, (top, bottom), tol=1e-9, stretch=False)
+    want_on, _ = library_result(obj, (top, bottom), tol=1e-9, stretch=True)
+    got = compute(obj)
+    diag = diagonal(rest(obj))
+    assert np.abs(want_on - want_off).max() > 1e-4 * diag  # the setting matters here
+    assert np.abs(got - want_off).max() < 1e-9 * diag
+
+
+def test_anchor_vertices_follow_their_empty_exactly():
+    obj, top, bottom = pyramid_bar()
+    top.empty.location = (0.5, -0.2, 2.3)
+    top.empty.rotation_euler = (0.4, 0.2, 0.9)
+    top.empty.scale = (0.8, 0.8, 0.8)
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    x = output(obj)
+    r = rest(obj)
+    for anc in (top, bottom):
+        m = np.array(anc.empty.matrix_world) @ np.linalg.inv(
+            np.array(tuple(anc.bind_matrix)).reshape(4, 4)
+        )
+        idx = anchor_vertices(obj, anc)
+        want = r[idx] @ m[:3, :3].T + m[:3, 3]
+        np.testing.assert_allclose(x[idx], want, atol=1e-5)
+
+
+def test_at_rest_the_mesh_stays_at_rest():
+    obj, top, _ = pyramid_bar()
+    assert output(obj).tobytes() == rest(obj).tobytes()  # Bind writes the rest shape
+    loc = tuple(top.empty.location)
+    top.empty.location.x += 0.7
+    update()
+    assert np.abs(output(obj) - rest(obj)).max() > 0.3
+    top.empty.location = loc  # back to the bind pose exactly
+    update()
+    assert output(obj).tobytes() == rest(obj).tobytes()
+    # and the solver itself, asked for the bind pose, does not move the mesh
+    entry = session.entry_for(obj, bpy.context.scene)
+    m = methods.get("PYRAMID")
+    eye = np.broadcast_to(np.eye(4), (2, 4, 4)).copy()
+    res = m.solve(entry.solver, eye, {}, None)
+    assert res.done
+    assert np.abs(res.positions - rest(obj)).max() < 1e-9 * diagonal(rest(obj))
+
+
+def test_a_rigid_motion_of_all_anchors_moves_the_mesh_rigidly():
+    obj, top, bottom = pyramid_bar()
+    rot = Euler((0.7, -0.3, 1.1)).to_matrix().to_4x4()
+    motion = Matrix.Translation(Vector((1.5, -0.5, 0.8))) @ rot
+    for anc in (top, bottom):
+        anc.empty.matrix_world = motion @ anc.empty.matrix_world
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    m = np.array(motion)
+    want = rest(obj) @ m[:3, :3].T + m[:3, 3]
+    np.testing.assert_allclose(compute(obj), want, atol=1e-6 * diagonal(want))
+    np.testing.assert_allclose(output(obj), want, atol=1e-5)
+
+
+def test_live_updates_spend_the_budget_and_keep_settling():
+    obj, top, bottom = pyramid_bar(rings=21)
+    p = obj.material_deform.pyramid
+    p.live_iterations = 20
+    p.tolerance = 1e-8
+    p.stretch = False  # with it this pose does not converge (see the max-sweeps test)
+    top.empty.location.x += 1.2
+    top.empty.rotation_euler.y = 0.8
+    update()  # one live update: two sweeps, not converged yet
+    key = obj.as_pointer()
+    assert key in session._unsettled
+    entry = session.entry_for(obj, bpy.context.scene)
+    assert entry.state["iterations"] == 20 and entry.state["move"] >= 1e-8
+    first = output(obj).copy()
+    for _ in range(5000):  # what the handlers' timer does until the result has settled
+        if not session.unsettled():
+            break
+        handlers._keep_settling()
+    assert not session.unsettled(), entry.state["move"]
+    settled = output(obj).copy()
+    assert np.abs(settled - first).max() > 1e-4  # it kept moving after the drag
+    assert entry.state["move"] < 1e-8
+    # a fixed point: one more live update from there moves nothing
+    entry.last_key = None
+    update()
+    np.testing.assert_allclose(output(obj), settled, atol=1e-6)
+
+
+def test_changing_a_live_setting_solves_again_without_rebind():
+    obj, top, _ = pyramid_bar()
+    p = obj.material_deform.pyramid
+    p.tolerance = 1e-9
+    top.empty.location.x += 1.0
+    top.empty.rotation_euler.y = 0.6
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    on = output(obj).copy()
+    p.stretch = False  # a live setting: no stale bind, the next update re-solves
+    assert session.stale_reason(obj) == ""
+    for _ in range(5000):
+        update()
+        if not session.unsettled():
+            break
+        handlers._keep_settling()
+    assert session.stale_reason(obj) == ""
+    assert np.abs(output(obj) - on).max() > 1e-5
+
+
+def test_rotation_anchor_mode_is_refused_and_nothing_changes():
+    obj = tube(rings=13)
+    obj.material_deform.method = "PYRAMID"
+    add_anchor(obj, lambda p: p.center.z > 2 - 1e-4, mode="ROTATION")
+    add_anchor(obj, lambda p: p.center.z < -2 + 1e-4)
+    before = snapshot(obj)
+    expect_error(bpy.ops.object.material_deform_bind, "not used by")
+    assert snapshot(obj) == before and not obj.material_deform.bound
+
+
+def test_a_part_without_anchor_is_refused_and_nothing_changes():
+    import bmesh
+
+    obj = tube(rings=13)
+    bm = bmesh.new()
+    bm.from_mesh(obj.data)
+    quad = [bm.verts.new(c) for c in [(5, 0, 0), (6, 0, 0), (6, 1, 0), (5, 1, 0)]]
+    bm.faces.new(quad)  # a loose quad far away: no anchor reaches it
+    bm.to_mesh(obj.data)
+    bm.free()
+    obj.material_deform.method = "PYRAMID"
+    two_end_anchors(obj)
+    before = snapshot(obj)
+    expect_error(bpy.ops.object.material_deform_bind, "no anchor")
+    assert snapshot(obj) == before and not obj.material_deform.bound
+
+
+def test_nan_empty_is_reported_as_an_error_and_the_key_keeps_its_pose():
+    obj, top, _ = pyramid_bar()
+    top.empty.location.x += 0.5
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    before = output(obj).copy()
+    top.empty.location.x = float("nan")
+    expect_error(bpy.ops.object.material_deform_settle, "Cannot pose|NaN|non-finite|finite")
+    assert output(obj).tobytes() == before.tobytes()
+    update()  # the live update does not write either
+    assert output(obj).tobytes() == before.tobytes()
+    assert np.all(np.isfinite(output(obj)))
+
+
+def test_a_flattened_empty_gives_a_finite_pose():
+    obj, top, _ = pyramid_bar()
+    top.empty.scale = (0.0, 1.0, 1.0)  # the top anchor's vertices collapse onto a plane
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    assert np.all(np.isfinite(output(obj)))
+
+
+def test_panel_draws_the_pyramid_settings_below_the_common_controls():
+    obj, _, _ = pyramid_bar()
+    log = draw_panel()
+    for name in ("live_iterations", "tolerance", "stretch", "object.material_deform_settle"):
+        assert name in log, name
+    assert log.index("method") < log.index("live_iterations")
+    assert "anisotropic" not in log  # the material method's settings are not shown
+    from helpers import cut_texts
+
+    assert cut_texts(draw_panel.tree) == []
+
+
+def run(op, **kw):
+    return op("EXEC_DEFAULT", True, **kw)
+
+
+def test_undo_of_a_settle_and_of_a_bind():
+    obj, top, _ = pyramid_bar()
+    obj.material_deform.live = False
+    top.empty.location.x += 1.0
+    top.empty.rotation_euler.y = 0.5
+    update()
+    bpy.ops.ed.undo_push(message="moved, live off")
+    before = output(obj).copy()
+    assert run(bpy.ops.object.material_deform_settle) == {"FINISHED"}
+    settled = output(obj).copy()
+    assert np.abs(settled - before).max() > 0.3
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    obj = bpy.data.objects["Bar"]
+    assert output(obj).tobytes() == before.tobytes()
+    assert bpy.ops.ed.redo() == {"FINISHED"}
+    obj = bpy.data.objects["Bar"]
+    assert output(obj).tobytes() == settled.tobytes()
+    # the solver is rebuilt for the restored state and gives the same result again
+    assert run(bpy.ops.object.material_deform_settle) == {"FINISHED"}
+    np.testing.assert_allclose(output(obj), settled, atol=1e-5)
+
+
+def test_undo_bind_unbinds():
+    obj = tube(rings=13)
+    obj.material_deform.method = "PYRAMID"
+    two_end_anchors(obj)
+    bpy.ops.ed.undo_push(message="anchors")
+    assert run(bpy.ops.object.material_deform_bind) == {"FINISHED"}
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    obj = bpy.data.objects["Bar"]
+    assert not obj.material_deform.bound and obj.material_deform.method == "PYRAMID"
+    assert run(bpy.ops.object.material_deform_bind) == {"FINISHED"}
+    assert obj.material_deform.bound
+
+
+def test_bake_converges_each_frame():
+    obj, top, bottom = pyramid_bar()
+    obj.material_deform.pyramid.tolerance = 1e-9
+    e = top.empty
+    e.keyframe_insert("location", frame=1)
+    e.location.x += 1.0
+    e.rotation_euler.y = 0.5
+    e.keyframe_insert("location", frame=3)
+    e.keyframe_insert("rotation_euler", frame=3)
+    s = obj.material_deform
+    s.bake_start, s.bake_end, s.bake_output = 1, 3, "SHAPE_KEYS"
+    assert bpy.ops.object.material_deform_bake() == {"FINISHED"}
+    baked = obj.data.shape_keys.key_blocks
+    names = [k.name for k in baked if k.name not in ("Basis", "Material Deform")]
+    assert len(names) == 3
+    bpy.context.scene.frame_set(3)
+    want, _ = library_result(obj, (top, bottom), tol=1e-9)
+    last = np.empty(len(obj.data.vertices) * 3, np.float32)
+    baked[names[-1]].data.foreach_get("co", last)
+    # each frame from the solver's own start, not from the previous frame: the library's result
+    np.testing.assert_allclose(last.reshape(-1, 3), want, atol=1e-6 * diagonal(want))
+    assert math.isfinite(float(last.sum()))
+
+
+@pytest.mark.parametrize("budget", [10, 17])
+def test_budget_is_the_number_of_sweeps_per_update(budget):
+    obj, top, _ = pyramid_bar()
+    obj.material_deform.pyramid.live_iterations = budget
+    obj.material_deform.pyramid.tolerance = 1e-12
+    top.empty.location.x += 1.0
+    update()
+    entry = session.entry_for(obj, bpy.context.scene)
+    assert entry.state["iterations"] == budget
+
+
+def test_a_pose_that_does_not_converge_stops_after_max_sweeps():
+    obj, top, _ = pyramid_bar(rings=21)
+    p = obj.material_deform.pyramid
+    p.stretch, p.tolerance, p.live_iterations, p.max_iterations = True, 1e-12, 10, 35
+    top.empty.location.x += 1.2
+    top.empty.rotation_euler.y = 0.8
+    update()
+    entry = session.entry_for(obj, bpy.context.scene)
+    calls = 0
+    while session.unsettled() and calls < 100:
+        handlers._keep_settling()
+        calls += 1
+    assert not session.unsettled() and calls == 3  # 10 + 10 + 10 + 5 sweeps
+    assert entry.state["spent"] == 35 and not entry.state["converged"]
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}  # no sweep left: one more
+    assert entry.state["spent"] == 36
