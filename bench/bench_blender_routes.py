@@ -23,23 +23,13 @@ Usage:
 
 import argparse
 import os
-import statistics
 import sys
-import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import bench_blender as bb  # noqa: E402  (also puts MD_SYS_PATH on sys.path)
 import bpy  # noqa: E402
 import numpy as np  # noqa: E402
-
-
-def median_ms(fn, reps):
-    times = []
-    for i in range(reps):
-        t = time.perf_counter()
-        fn(i)
-        times.append(time.perf_counter() - t)
-    return 1000 * statistics.median(times)
+from bench_blender_parts import median_ms  # noqa: E402
 
 
 def main():
