@@ -437,23 +437,12 @@ def build_sheets():
             ob.empty_display_size = 0.08
         if ob.type == "FONT":
             ob.data.size = 0.16
-    cam_data = bpy.data.cameras.new("Camera")
-    cam_data.type = "ORTHO"
-    cam_data.ortho_scale = 6.8
-    cam = bpy.data.objects.new("Camera", cam_data)
+    camera_and_light(scene)  # then framed on the sheets
+    cam = scene.camera
+    cam.data.ortho_scale = 6.8
     cam.location = (2.9, -9.0, -0.3)
     cam.rotation_euler = (math.radians(88), 0, 0)
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    sun = bpy.data.objects.new("Sun", bpy.data.lights.new("Sun", "SUN"))
-    sun.rotation_euler = (0.9, 0.2, -0.4)
-    sun.data.energy = 3.0
-    scene.collection.objects.link(sun)
-    world = bpy.data.worlds.new("World")
-    world.color = (0.8, 0.8, 0.8)
-    scene.world = world
     scene.render.resolution_x, scene.render.resolution_y = 1600, 560
-    scene.render.resolution_percentage = 100
     return scene
 
 
