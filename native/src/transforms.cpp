@@ -298,21 +298,32 @@ MD_ALWAYS_INLINE void lane_weights(const double* W, int k, int m, int f0, int a,
   }
 }
 
+// Weighted sum over the k anchors of the similarity logs P (4 per anchor: w, s) for the four
+// faces of group f0: (x, y, z) the rotation log, s the log-scale. If b >= 0, *wb receives the
+// weights of anchor b.
+MD_ALWAYS_INLINE void blend_similarity_logs(const double* P, int k, const double* W, int m, int f0,
+                                            int b, Vec4d* x, Vec4d* y, Vec4d* z, Vec4d* s,
+                                            Vec4d* wb) {
+  *x = *y = *z = *s = Vec4d{0.0, 0.0, 0.0, 0.0};
+  for (int a = 0; a < k; ++a) {
+    Vec4d w;
+    lane_weights(W, k, m, f0, a, &w);
+    *x += w * P[4 * a];
+    *y += w * P[4 * a + 1];
+    *z += w * P[4 * a + 2];
+    *s += w * P[4 * a + 3];
+    if (a == b) *wb = w;
+  }
+}
+
 // Isotropic similarity blend, exp(s I + [w]x) = e^s Rodrigues(w), for the faces of groups
 // [gb, ge), four at a time: W is the (m,k) row-major weights, P as from similarity_logs.
 MD_ALWAYS_INLINE void blend_similar_body(const double* P, int k, bool scaled, const double* W,
                                          int m, int gb, int ge, double* out) {
   for (int g = gb; g < ge; ++g) {
     const int f0 = kGroupFaces * g;
-    Vec4d x = {0.0, 0.0, 0.0, 0.0}, y = x, z = x, s = x;
-    for (int a = 0; a < k; ++a) {
-      Vec4d w;
-      lane_weights(W, k, m, f0, a, &w);
-      x += w * P[4 * a];
-      y += w * P[4 * a + 1];
-      z += w * P[4 * a + 2];
-      s += w * P[4 * a + 3];
-    }
+    Vec4d x, y, z, s;
+    blend_similarity_logs(P, k, W, m, f0, -1, &x, &y, &z, &s, nullptr);
     Vec4d sc = {1.0, 1.0, 1.0, 1.0};
     if (scaled) exp4(s, &sc);
     rodrigues4(x, y, z, sc,
@@ -378,16 +389,8 @@ MD_ALWAYS_INLINE void blend_one_stretch_body(const double* P, int k, int b, cons
                                              int ge, double* out) {
   for (int g = gb; g < ge; ++g) {
     const int f0 = kGroupFaces * g;
-    Vec4d x = {0.0, 0.0, 0.0, 0.0}, y = x, z = x, s = x, wb = x;
-    for (int a = 0; a < k; ++a) {
-      Vec4d w;
-      lane_weights(W, k, m, f0, a, &w);
-      x += w * P[4 * a];
-      y += w * P[4 * a + 1];
-      z += w * P[4 * a + 2];
-      s += w * P[4 * a + 3];
-      if (a == b) wb = w;
-    }
+    Vec4d x, y, z, s, wb = {0.0, 0.0, 0.0, 0.0};
+    blend_similarity_logs(P, k, W, m, f0, b, &x, &y, &z, &s, &wb);
     Vec4d E[6];
     for (int e = 0; e < 6; ++e) E[e] = x * 0.0;
     for (int c = 0; c < 3; ++c) {
