@@ -34,12 +34,15 @@
 #if defined(__GNUC__) || defined(__clang__)
 #define MD_ALWAYS_INLINE inline __attribute__((always_inline))
 #define MD_MAY_ALIAS __attribute__((may_alias))
+#define MD_PREFETCH(p) __builtin_prefetch(p)
 #elif defined(_MSC_VER)
 #define MD_ALWAYS_INLINE __forceinline
 #define MD_MAY_ALIAS
+#define MD_PREFETCH(p) ((void)(p))
 #else
 #define MD_ALWAYS_INLINE inline
 #define MD_MAY_ALIAS
+#define MD_PREFETCH(p) ((void)(p))
 #endif
 
 namespace matdeform {
