@@ -152,6 +152,20 @@ MUTATIONS = [
         "parallel substitution leaves each subtree's root out (only the threaded path)",
     ),
     M(
+        "SC2",
+        "native/src/sparse_cholesky.cpp",
+        "y[sched.slot_row[q]] += sl[q];",
+        "y[sched.slot_row[q]] -= sl[q];",
+        "parallel substitution subtracts the subtrees' updates of the top separators twice over",
+    ),
+    M(
+        "SC3",
+        "native/src/sparse_cholesky.cpp",
+        "const double* tc = tri + static_cast<size_t>(c) * (c - 1) / 2;",
+        "const double* tc = tri + static_cast<size_t>(c) * (c + 1) / 2;",
+        "backward substitution reads the supernode triangle's next row (packed offset)",
+    ),
+    M(
         "P1",
         "native/src/pyramid_deformer.cpp",
         "(*pushes)[j] = s / (qe - qb);",
