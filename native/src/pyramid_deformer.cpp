@@ -502,17 +502,28 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
   if (nf == 0) return 0;
   // Anderson acceleration (Walker & Ni 2011) of the sweep map G over the free coordinates:
   // x+ = G(x) - dG gamma with gamma = argmin |f - dF gamma|, f = G(x) - x, over the last
-  // `window` differences. Only dot products and matrix-vector products: Eigen runs
-  // matrix-matrix products on OpenMP threads, which would fight the task pool's workers.
+  // `window` differences. The length-3nf work is two passes on the task pool: one reads the
+  // sweep's result, appends the new difference columns and forms the new Gram row and dF^T f
+  // together (one read of dF), the other applies gamma (one read of dG). They run in a fixed
+  // number of chunks whose partial sums are added in order, so the result does not depend on
+  // the thread count. (Eigen's matrix products would run on OpenMP threads and fight the
+  // pool's workers.)
   const int window = std::max(0, o.anderson);
   const Eigen::Index len = 3 * static_cast<Eigen::Index>(nf);
-  Eigen::VectorXd x, g, f, f_prev, g_prev;
+  Eigen::VectorXd f_prev, g_prev, g_acc, gamma;
   Eigen::MatrixXd dF, dG, gram;
+  const int parts = std::max(1, std::min(16, nf / 512));
+  std::vector<double> part;
   if (window > 0) {
-    x.resize(len), g.resize(len);
+    f_prev.resize(len), g_prev.resize(len), g_acc.resize(len);
     dF.resize(len, window), dG.resize(len, window);
     gram = Eigen::MatrixXd::Zero(window, window);
+    part.assign(static_cast<size_t>(parts) * 2 * window, 0.0);
   }
+  auto chunk = [&](int p, int* b, int* e) {
+    *b = static_cast<int>(static_cast<int64_t>(nf) * p / parts);
+    *e = static_cast<int>(static_cast<int64_t>(nf) * (p + 1) / parts);
+  };
   int stored = 0, head = 0, it = 0;
   Vertices Y;
   while (it < max_iterations) {
@@ -521,32 +532,72 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
     // The move is the sweep's (the fixed-point residual), not the accelerated step's.
     *move = max_move(Y, *X, free);
     if (window > 0) {
-      for (int r = 0; r < nf; ++r) {
-        const int v = free[static_cast<size_t>(r)];
-        x.segment<3>(3 * r) = X->row(v).transpose();
-        g.segment<3>(3 * r) = Y.row(v).transpose();
-      }
-      f = g - x;
-      if (it > 0) {
-        dF.col(head) = f - f_prev;
-        dG.col(head) = g - g_prev;
-        stored = std::min(stored + 1, window);
-        for (int j = 0; j < stored; ++j)
-          gram(head, j) = gram(j, head) = dF.col(head).dot(dF.col(j));
+      const bool append = it > 0;
+      const int n_cols = append ? std::min(stored + 1, window) : 0;
+      run_tasks(parts, [&](int p) {
+        int b, e;
+        chunk(p, &b, &e);
+        double* fp = f_prev.data();
+        double* gp = g_prev.data();
+        double* dfh = dF.col(head).data();
+        double* dgh = dG.col(head).data();
+        for (int r = b; r < e; ++r) {
+          const int v = free[static_cast<size_t>(r)];
+          for (int c = 0; c < 3; ++c) {
+            const Eigen::Index i = 3 * static_cast<Eigen::Index>(r) + c;
+            const double g = Y(v, c), f = g - (*X)(v, c);
+            if (append) {
+              dfh[i] = f - fp[i];
+              dgh[i] = g - gp[i];
+            }
+            fp[i] = f;
+            gp[i] = g;
+          }
+        }
+        double* out = part.data() + static_cast<size_t>(p) * 2 * window;
+        const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
+                           n3 = 3 * static_cast<Eigen::Index>(e - b);
+        const auto dh = dF.col(head).segment(ib, n3);
+        const auto fs = f_prev.segment(ib, n3);
+        for (int j = 0; j < n_cols; ++j) {
+          const auto dj = dF.col(j).segment(ib, n3);
+          out[j] = dh.dot(dj);
+          out[window + j] = dj.dot(fs);
+        }
+      });
+      if (append) {
+        stored = n_cols;
+        for (int j = 0; j < stored; ++j) {
+          double s = 0;
+          for (int p = 0; p < parts; ++p) s += part[static_cast<size_t>(p) * 2 * window + j];
+          gram(head, j) = gram(j, head) = s;
+        }
         head = (head + 1) % window;
       }
-      f_prev = f;
-      g_prev = g;
       if (stored > 0) {
+        Eigen::VectorXd rhs = Eigen::VectorXd::Zero(stored);
+        for (int p = 0; p < parts; ++p) {
+          for (int j = 0; j < stored; ++j)
+            rhs(j) += part[static_cast<size_t>(p) * 2 * window + window + j];
+        }
         Eigen::MatrixXd A = gram.topLeftCorner(stored, stored);
-        const Eigen::VectorXd rhs = dF.leftCols(stored).transpose() * f;
         A.diagonal().array() += 1e-10 * A.diagonal().maxCoeff() + 1e-300;
-        const Eigen::VectorXd gamma = A.ldlt().solve(rhs);
+        gamma = A.ldlt().solve(rhs);
         if (gamma.allFinite()) {
-          g.noalias() -= dG.leftCols(stored) * gamma;
-          for (int r = 0; r < nf; ++r) {
-            Y.row(free[static_cast<size_t>(r)]) = g.segment<3>(3 * r).transpose();
-          }
+          run_tasks(parts, [&](int p) {
+            int b, e;
+            chunk(p, &b, &e);
+            const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
+                               n3 = 3 * static_cast<Eigen::Index>(e - b);
+            auto acc = g_acc.segment(ib, n3);
+            acc = g_prev.segment(ib, n3);
+            for (int j = 0; j < stored; ++j) acc -= gamma(j) * dG.col(j).segment(ib, n3);
+            for (int r = b; r < e; ++r) {
+              const int v = free[static_cast<size_t>(r)];
+              const Eigen::Index i0 = 3 * static_cast<Eigen::Index>(r);
+              for (int c = 0; c < 3; ++c) Y(v, c) = g_acc(i0 + c);
+            }
+          });
         }
       }
     }
