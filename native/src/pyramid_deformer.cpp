@@ -165,9 +165,11 @@ PyramidCoordinates pyramid_coordinates(const Vertices& vertices, const Faces& fa
 
 namespace {
 
-// Chunks per thread of the parallel loops: small enough for the claims to balance a late worker.
-int chunks() { return 4 * num_threads(); }
-constexpr int kMinChunk = 256;
+// Chunks per thread of the parallel loops: small enough for the claims to balance a late worker
+// (a colour of the cat is ~1000 vertices: chunks of 256 left one of two threads idle 12 % of a
+// sweep; 64 gave 10-15 % more sweeps per second with two threads).
+int chunks() { return 16 * num_threads(); }
+constexpr int kMinChunk = 64;
 
 // Largest |a_v - b_v| over the listed vertices, in parallel.
 double max_move(const Vertices& A, const Vertices& B, const std::vector<int>& verts) {
