@@ -505,36 +505,31 @@ def build_pyramid():
     return scene
 
 
+def save_and_render(scene, blend_name, png_name, **render_options):
+    """Save the current file as out/<blend_name> and render the scene to out/<png_name>."""
+    blend = OUT / blend_name
+    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
+    png = OUT / png_name
+    engine = render(scene, png, **render_options)
+    print(f"DEMO OK: {blend} and {png} ({engine})")
+
+
 def main():
     OUT.mkdir(exist_ok=True)
     enable_addon()
     scene = build()
     camera_and_light(scene)
-    blend = OUT / "demo.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    engine = render(scene, OUT / "demo.png")
-    print(f"DEMO OK: {blend} and {OUT / 'demo.png'} ({engine})")
-    scene = build_sheets()
-    blend = OUT / "demo_edge.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    engine = render(scene, OUT / "demo_edge.png")
-    print(f"DEMO OK: {blend} and {OUT / 'demo_edge.png'} ({engine})")
+    save_and_render(scene, "demo.blend", "demo.png")
+
+    save_and_render(build_sheets(), "demo_edge.blend", "demo_edge.png")
 
     scene = build_pose_space()
     camera_and_light_pose_space(scene)
-    blend = OUT / "demo_pose_space.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    png = OUT / "demo_pose_space_addon.png"
-    engine = render(scene, png)
-    print(f"DEMO OK: {blend} and {png} ({engine})")
+    save_and_render(scene, "demo_pose_space.blend", "demo_pose_space_addon.png")
 
     scene = build_pyramid()
     camera_and_light(scene)
-    blend = OUT / "demo_pyramid.blend"
-    bpy.ops.wm.save_as_mainfile(filepath=str(blend))
-    png = OUT / "demo_pyramid_blender.png"
-    engine = render(scene, png, color_type="MATERIAL")
-    print(f"DEMO OK: {blend} and {png} ({engine})")
+    save_and_render(scene, "demo_pyramid.blend", "demo_pyramid_blender.png", color_type="MATERIAL")
 
 
 main()
