@@ -98,10 +98,6 @@ struct EstimateArgs {
   double p_rho, p_sig;
 };
 
-// Four doubles of a group field as a vector (a macro: returning vectors from functions warns about
-// the ABI in the baseline build).
-#define MD_LD4(p) (*reinterpret_cast<const Vec4d*>(p))
-
 // Four (x, y, z, pad) rows -> x, y, z of the four.
 MD_ALWAYS_INLINE void load_soa(const Vec4d* P, const int* idx, Vec4d* x, Vec4d* y, Vec4d* z) {
   const Vec4d a = P[idx[0]], b = P[idx[1]], c = P[idx[2]], d = P[idx[3]];
@@ -130,11 +126,6 @@ MD_ALWAYS_INLINE void add_aos(const Vec4d& x, const Vec4d& y, const Vec4d& z, co
 
 MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
   return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-}
-
-// Square root lane by lane; vectorised because this file is built with -fno-math-errno.
-MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
-  *out = Vec4d{std::sqrt(a[0]), std::sqrt(a[1]), std::sqrt(a[2]), std::sqrt(a[3])};
 }
 
 // Estimation step (Eq. 10 with Eq. 15): for each edge the targets

@@ -14,6 +14,8 @@
 //     same operators, left to the optimiser, and no AVX2 copies.
 #pragma once
 
+#include <cmath>
+#include <cstddef>
 #include <cstdint>
 #include <cstring>
 
@@ -124,6 +126,11 @@ MD_ALWAYS_INLINE Lanes4<T> operator-(const Lanes4<T>& a) {
 }
 
 template <class T>
+MD_ALWAYS_INLINE Lanes4<T> operator~(const Lanes4<T>& a) {
+  return {{~a.v[0], ~a.v[1], ~a.v[2], ~a.v[3]}};
+}
+
+template <class T>
 MD_ALWAYS_INLINE Lanes4<T> operator<<(const Lanes4<T>& a, int n) {
   return {{a.v[0] << n, a.v[1] << n, a.v[2] << n, a.v[3] << n}};
 }
@@ -170,6 +177,25 @@ MD_ALWAYS_INLINE Vec4d high_halves(const Vec4d& a, const Vec4d& b) {
 
 static_assert(sizeof(Vec4d) == 4 * sizeof(double) && alignof(Vec4d) == alignof(double),
               "Vec4d must overlay four doubles of an array");
+
+// Four consecutive doubles as a vector (a macro: returning vectors from functions warns about the
+// ABI in the baseline build).
+#define MD_LD4(p) (*reinterpret_cast<const Vec4d*>(p))
+
+// Square root lane by lane. It vectorises only where the file is built with -fno-math-errno
+// (native/CMakeLists.txt), else each lane calls sqrt for errno's sake.
+MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
+  *out = Vec4d{std::sqrt(a[0]), std::sqrt(a[1]), std::sqrt(a[2]), std::sqrt(a[3])};
+}
+
+// Shared vector kernels (both builds, dispatched). Anderson acceleration's history passes:
+// *ab = a . b and *ac = a . c over n entries;
+void dot2(const double* a, const double* b, const double* c, std::ptrdiff_t n, double* ab,
+          double* ac);
+// out = base - sum_{j < k} gamma_j col_j over n entries, col_j = cols + j * ld (out may not
+// overlap the columns).
+void subtract_columns(const double* cols, std::ptrdiff_t ld, int k, const double* gamma,
+                      const double* base, double* out, std::ptrdiff_t n);
 
 // True when the AVX2+FMA builds are to be used: the CPU runs them (checked once) and they are
 // not switched off.

@@ -5,6 +5,8 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <cmath>
+#include <vector>
 
 #include "matdeform/deformer.hpp"
 #include "matdeform/mesh.hpp"
@@ -20,6 +22,35 @@ struct BaselineKernels {
   BaselineKernels() : before(set_avx2_kernels_enabled(false)) {}
   ~BaselineKernels() { set_avx2_kernels_enabled(before); }
 };
+
+// Anderson's history kernels against plain loops, every length up to two blocks of the
+// subtraction (tails of both the 8-wide dot loop and the 4-wide update), both builds.
+TEST(Simd, Dot2AndSubtractColumnsMatchPlainLoops) {
+  for (bool avx2 : {true, false}) {
+    if (avx2 && !cpu_has_avx2_fma()) continue;
+    const bool before = set_avx2_kernels_enabled(avx2);
+    for (int n : {0, 1, 3, 4, 7, 8, 9, 15, 17, 511, 512, 513, 1029}) {
+      const int k = 5, ld = n + 3;
+      std::vector<double> cols(static_cast<size_t>(k) * ld), b(n), c(n), base(n), gamma(k);
+      for (size_t i = 0; i < cols.size(); ++i) cols[i] = std::sin(0.7 * i + 0.1);
+      for (int i = 0; i < n; ++i) b[i] = std::cos(1.3 * i), c[i] = 0.5 - 0.01 * i, base[i] = i;
+      for (int j = 0; j < k; ++j) gamma[j] = 0.3 * j - 0.5;
+      double ab = 0, ac = 0, want_b = 0, want_c = 0;
+      dot2(cols.data() + ld, b.data(), c.data(), n, &ab, &ac);
+      for (int i = 0; i < n; ++i) want_b += cols[ld + i] * b[i], want_c += cols[ld + i] * c[i];
+      EXPECT_NEAR(ab, want_b, 1e-12 * (1 + n)) << n << " " << avx2;
+      EXPECT_NEAR(ac, want_c, 1e-12 * (1 + n)) << n << " " << avx2;
+      std::vector<double> out(n, -7.0);
+      subtract_columns(cols.data(), ld, k, gamma.data(), base.data(), out.data(), n);
+      for (int i = 0; i < n; ++i) {
+        double want = base[i];
+        for (int j = 0; j < k; ++j) want -= gamma[j] * cols[static_cast<size_t>(j) * ld + i];
+        ASSERT_NEAR(out[i], want, 1e-12 * (1 + i)) << n << " " << i << " " << avx2;
+      }
+    }
+    set_avx2_kernels_enabled(before);
+  }
+}
 
 TEST(Simd, BuildUsesTheRequestedPath) {
 #if defined(MATDEFORM_PORTABLE_SIMD) || !(defined(__GNUC__) || defined(__clang__))
