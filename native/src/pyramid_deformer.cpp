@@ -14,6 +14,7 @@
 
 #include "matdeform/mesh.hpp"
 #include "matdeform/threads.hpp"
+#include "simd.hpp"
 #include "task_pool.hpp"
 
 namespace matdeform {
@@ -42,6 +43,28 @@ inline Vec3 newell(const double* X, const int* ring, int m, const Vec3& c) {
     a = b;
   }
   return N;
+}
+
+// The rotation U V^T of H = U S V^T where det H > 0, by Higham's scaled Newton iteration for
+// the polar factor: a few 3x3 inverses, several times cheaper than a 3x3 SVD (followers are up to
+// 3 % of a decimated mesh and took a quarter of its sweep). False where H is a reflection or
+// nearly singular, or the iteration does not settle: the SVD then decides.
+bool polar_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R) {
+  const double hn = H.norm();
+  if (!(H.determinant() > 1e-9 * hn * hn * hn)) return false;
+  Eigen::Matrix3d X = H;
+  for (int k = 0; k < 30; ++k) {
+    const Eigen::Matrix3d Xi = X.inverse();
+    const double g = std::sqrt(Xi.norm() / X.norm());
+    const Eigen::Matrix3d next = 0.5 * (g * X + Xi.transpose() / g);
+    const double step = (next - X).norm();
+    X = next;
+    if (step < 1e-13) {  // quadratic convergence: X is orthogonal to round-off
+      *R = X;
+      return true;
+    }
+  }
+  return false;
 }
 
 inline Vec3 centroid(const double* X, const int* ring, int m) {
@@ -195,6 +218,32 @@ double max_move(const Vertices& A, const Vertices& B, const std::vector<int>& ve
 
 }  // namespace
 
+// The placement kernel's unit: four free vertices of one colour and one valence m, placed side by
+// side (four lanes of a Vec4d) so that the 2m + 1 square roots per vertex run four at a time. Their
+// m neighbour entries are group_ring[4 e + lane] and group_val[12 e + 4 f + lane] for
+// e = entry .. entry + m - 1 and the fields f = 0: w_i / l_i, 1: w_i, 2: cot(beta_i). The last
+// group of a valence repeats its last vertex to fill the lanes (same inputs, same result).
+struct PlaceGroup {
+  int v[4];
+  int m;
+  int entry;
+};
+constexpr int kGroupMaxValence = 16;  // higher valences are placed one by one
+
+struct PyramidSolver;
+
+struct PlaceArgs {
+  const PyramidSolver* solver;  // the scalar placement, for lanes whose plane vanished
+  const PlaceGroup* groups;
+  const int* ring;
+  const double* val;
+  const double* from;
+  double* to;
+  const int* push_row;  // null: no step 2
+  const Vec3* pushes;
+  bool stretch;
+};
+
 // Everything a sweep needs: the description plus the colouring and step 2's adjacency.
 struct PyramidSolver {
   Vertices rest;
@@ -207,24 +256,27 @@ struct PyramidSolver {
   std::vector<int> pushed, pushed_offsets, pushed_by;  // CSR: free vertex <- pushers rows
   std::vector<int> push_row;                           // vertex -> row in pushed, or -1
   int num_passive = 0;
+  // The placement kernel's copy of the description (see PlaceGroup), per colour.
+  std::vector<std::vector<PlaceGroup>> color_groups;
+  std::vector<std::vector<int>> color_singles;  // placed one by one: followers, high valence
+  std::vector<int> group_ring;                  // 4 neighbour ids per group entry
+  std::vector<double> group_val;                // w_i/l_i, w_i, cot(beta_i): 4 each per entry
 
   PyramidSolver(const Vertices& vertices, const Faces& faces, const std::vector<char>& is_control);
   Vec3 follow(int v, const double* X) const;
   Vec3 place(int v, const double* X, bool stretch) const;
   // Step 2 from positions x: per pusher its shift, per pushed vertex the mean of its pushers'.
   void shifts(const double* x, std::vector<Vec3>* shift, std::vector<Vec3>* pushes) const;
-  // to_v = place(v, from) + push_v + tau_v for v in verts.
-  void apply(const std::vector<int>& verts, const double* from, double* to, const Vertices* tau,
-             const PyramidSolveOptions& o, const std::vector<Vec3>& pushes) const;
-  // One sweep over the free vertices (Gauss-Seidel by colours, or Jacobi), tau optional.
-  void sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const;
-  // Y_v = the placement of v from X (a Jacobi step) for v in verts; other rows untouched.
-  void jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
-              const PyramidSolveOptions& o, Vertices* Y) const;
+  void build_groups();
+  // to_v = place(v, from) + push_v for the free vertices of one colour.
+  void apply(int color, const double* from, double* to, const PyramidSolveOptions& o,
+             const std::vector<Vec3>& pushes) const;
+  // One sweep over the free vertices (Gauss-Seidel by colours, or Jacobi).
+  void sweep(Vertices* X, const PyramidSolveOptions& o) const;
   // Sweeps (Anderson-accelerated) until the largest sweep move < limit or max_iterations.
   // Returns the sweeps done; *move is the last sweep's largest move (absolute).
-  int iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o, int max_iterations,
-              double limit, double* move, std::vector<double>* moves, double diag) const;
+  int iterate(Vertices* X, const PyramidSolveOptions& o, int max_iterations, double limit,
+              double* move, std::vector<double>* moves, double diag) const;
 };
 
 PyramidSolver::PyramidSolver(const Vertices& vertices, const Faces& faces,
@@ -316,6 +368,40 @@ PyramidSolver::PyramidSolver(const Vertices& vertices, const Faces& faces,
                      by[static_cast<size_t>(v)].end());
     pushed_offsets.push_back(static_cast<int>(pushed_by.size()));
   }
+  build_groups();
+}
+
+void PyramidSolver::build_groups() {
+  const auto& off = coords.offsets;
+  color_groups.assign(colors.size(), {});
+  color_singles.assign(colors.size(), {});
+  for (size_t c = 0; c < colors.size(); ++c) {
+    std::vector<std::vector<int>> by_valence(kGroupMaxValence + 1);
+    for (int v : colors[c]) {
+      const int m = off[static_cast<size_t>(v) + 1] - off[static_cast<size_t>(v)];
+      if (coords.kind[static_cast<size_t>(v)] <= kPyramidBoundary && m <= kGroupMaxValence) {
+        by_valence[static_cast<size_t>(m)].push_back(v);
+      } else {
+        color_singles[c].push_back(v);
+      }
+    }
+    for (int m = 0; m <= kGroupMaxValence; ++m) {
+      const auto& vs = by_valence[static_cast<size_t>(m)];
+      for (size_t b = 0; b < vs.size(); b += 4) {
+        PlaceGroup g;
+        g.m = m;
+        g.entry = static_cast<int>(group_ring.size() / 4);
+        for (int l = 0; l < 4; ++l) g.v[l] = vs[std::min(b + l, vs.size() - 1)];
+        for (int i = 0; i < m; ++i) {
+          for (int l = 0; l < 4; ++l) group_ring.push_back(coords.neighbors[off[g.v[l]] + i]);
+          for (int l = 0; l < 4; ++l) group_val.push_back(weight_per_len[off[g.v[l]] + i]);
+          for (int l = 0; l < 4; ++l) group_val.push_back(coords.weight[off[g.v[l]] + i]);
+          for (int l = 0; l < 4; ++l) group_val.push_back(cot_beta[off[g.v[l]] + i]);
+        }
+        color_groups[c].push_back(g);
+      }
+    }
+  }
 }
 
 Vec3 PyramidSolver::follow(int v, const double* X) const {
@@ -340,6 +426,10 @@ Vec3 PyramidSolver::follow(int v, const double* X) const {
     s0 += a0.squaredNorm();
   }
   if (!(s0 > 0) || !Hm.allFinite()) return c;
+  Eigen::Matrix3d Rp;
+  if (polar_rotation(Hm, &Rp)) {  // the scale is the sum of the singular values, tr(R^T H)
+    return c + ((Rp.transpose() * Hm).trace() / s0) * (Rp * (row(R0, v) - c0));
+  }
   const Eigen::JacobiSVD<Eigen::Matrix3d> svd(Hm, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Eigen::Vector3d sig = svd.singularValues();
   Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
@@ -418,6 +508,119 @@ Vec3 PyramidSolver::place(int v, const double* X, bool stretch) const {
   return c + vp + (h / m) * n;
 }
 
+namespace {
+
+// x, y, z of rows idx[0..3] of an (n,3) array.
+MD_ALWAYS_INLINE void gather3(const double* X, const int* idx, Vec4d* x, Vec4d* y, Vec4d* z) {
+  const double *a = X + 3 * idx[0], *b = X + 3 * idx[1], *c = X + 3 * idx[2], *d = X + 3 * idx[3];
+  *x = Vec4d{a[0], b[0], c[0], d[0]};
+  *y = Vec4d{a[1], b[1], c[1], d[1]};
+  *z = Vec4d{a[2], b[2], c[2], d[2]};
+}
+
+// PyramidSolver::place for the four vertices of each group in [gb, ge), written with their
+// step-2 shift into a.to: the same arithmetic, four lanes at a time. A lane whose current
+// neighbours have no plane (the scalar path's follower fallback) is redone by the scalar code.
+MD_ALWAYS_INLINE void place_body(const PlaceArgs& a, int gb, int ge) {
+  const Vec4d zero = {0, 0, 0, 0}, one = {1, 1, 1, 1};
+  Vec4d dx[kGroupMaxValence], dy[kGroupMaxValence], dz[kGroupMaxValence];
+  for (int g = gb; g < ge; ++g) {
+    const PlaceGroup& G = a.groups[g];
+    const int m = G.m;
+    const int* ring = a.ring + 4 * static_cast<size_t>(G.entry);
+    const double* val = a.val + 12 * static_cast<size_t>(G.entry);
+    Vec4d cx = zero, cy = zero, cz = zero;
+    for (int i = 0; i < m; ++i) {
+      gather3(a.from, ring + 4 * i, &dx[i], &dy[i], &dz[i]);
+      cx += dx[i], cy += dy[i], cz += dz[i];
+    }
+    const double inv_m = 1.0 / m;
+    cx *= inv_m, cy *= inv_m, cz *= inv_m;
+    Vec4d spread2 = zero;
+    for (int i = 0; i < m; ++i) {
+      dx[i] -= cx, dy[i] -= cy, dz[i] -= cz;
+      spread2 += dx[i] * dx[i] + dy[i] * dy[i] + dz[i] * dz[i];
+    }
+    // Newell normal of the neighbour polygon
+    Vec4d nx = dy[m - 1] * dz[0] - dz[m - 1] * dy[0];
+    Vec4d ny = dz[m - 1] * dx[0] - dx[m - 1] * dz[0];
+    Vec4d nz = dx[m - 1] * dy[0] - dy[m - 1] * dx[0];
+    for (int i = 1; i < m; ++i) {
+      nx += dy[i - 1] * dz[i] - dz[i - 1] * dy[i];
+      ny += dz[i - 1] * dx[i] - dx[i - 1] * dz[i];
+      nz += dx[i - 1] * dy[i] - dy[i - 1] * dx[i];
+    }
+    Vec4d nn;
+    sqrt4(nx * nx + ny * ny + nz * nz, &nn);
+    const Vec4m plane = nn > kAreaEps * spread2;
+    const Vec4d inv_nn = one / MD_SELECT4(plane, nn, one);
+    nx *= inv_nn, ny *= inv_nn, nz *= inv_nn;
+    for (int i = 0; i < m; ++i) {  // v'_i - c on the plane P through c
+      const Vec4d t = nx * dx[i] + ny * dy[i] + nz * dz[i];
+      dx[i] -= t * nx, dy[i] -= t * ny, dz[i] -= t * nz;
+    }
+    // Eq. 1, with the stretch factors |v' - v'_i| / l_i when asked for.
+    Vec4d vx = zero, vy = zero, vz = zero;
+    Vec4m plain = plane;  // lanes that still need the plain weights
+    if (a.stretch) {
+      Vec4d px, py, pz;
+      gather3(a.from, G.v, &px, &py, &pz);
+      px -= cx, py -= cy, pz -= cz;
+      const Vec4d t = nx * px + ny * py + nz * pz;
+      px -= t * nx, py -= t * ny, pz -= t * nz;
+      Vec4d wsum = zero;
+      for (int i = 0; i < m; ++i) {
+        const Vec4d ex = px - dx[i], ey = py - dy[i], ez = pz - dz[i];
+        Vec4d len;
+        sqrt4(ex * ex + ey * ey + ez * ez, &len);
+        const Vec4d wi = MD_LD4(val + 12 * i) * len;
+        vx += wi * dx[i], vy += wi * dy[i], vz += wi * dz[i];
+        wsum += wi;
+      }
+      const double inf = std::numeric_limits<double>::infinity();
+      const Vec4m good = (wsum > 1e-300) & (vx < inf) & (vx > -inf) & (vy < inf) & (vy > -inf) &
+                         (vz < inf) & (vz > -inf);
+      const Vec4d inv_w = one / MD_SELECT4(good, wsum, one);
+      vx *= inv_w, vy *= inv_w, vz *= inv_w;
+      plain = plane & ~good;
+    }
+    bool any_plain = false;
+    for (int l = 0; l < 4; ++l) any_plain |= plain[l] != 0;
+    if (any_plain) {
+      Vec4d wx = zero, wy = zero, wz = zero;
+      for (int i = 0; i < m; ++i) {
+        const Vec4d w = MD_LD4(val + 12 * i + 4);
+        wx += w * dx[i], wy += w * dy[i], wz += w * dz[i];
+      }
+      vx = MD_SELECT4(plain, wx, vx), vy = MD_SELECT4(plain, wy, vy);
+      vz = MD_SELECT4(plain, wz, vz);
+    }
+    // Eq. 2: v = v' + n mean(h_i), h_i = |v' - v'_i| cot(beta_i) + (v_i - v'_i).n.
+    Vec4d h = zero;
+    for (int i = 0; i < m; ++i) {
+      const Vec4d ex = vx - dx[i], ey = vy - dy[i], ez = vz - dz[i];
+      Vec4d len;
+      sqrt4(ex * ex + ey * ey + ez * ez, &len);
+      h += len * MD_LD4(val + 12 * i + 8);
+    }
+    h *= inv_m;
+    const Vec4d ox = cx + vx + h * nx, oy = cy + vy + h * ny, oz = cz + vz + h * nz;
+    for (int l = 0; l < 4; ++l) {
+      const int v = G.v[l];
+      Vec3 p = plane[l] ? Vec3(ox[l], oy[l], oz[l]) : a.solver->place(v, a.from, a.stretch);
+      if (a.push_row) {
+        const int r = a.push_row[v];
+        if (r >= 0) p += a.pushes[r];
+      }
+      a.to[3 * v] = p(0), a.to[3 * v + 1] = p(1), a.to[3 * v + 2] = p(2);
+    }
+  }
+}
+void place_base(const PlaceArgs& a, int gb, int ge) { place_body(a, gb, ge); }
+MD_TARGET_AVX2 void place_avx2(const PlaceArgs& a, int gb, int ge) { place_body(a, gb, ge); }
+
+}  // namespace
+
 void PyramidSolver::shifts(const double* x, std::vector<Vec3>* shift,
                            std::vector<Vec3>* pushes) const {
   // Per control: the shift of its neighbours along n that would put the control at the mean
@@ -459,46 +662,53 @@ void PyramidSolver::shifts(const double* x, std::vector<Vec3>* shift,
   }
 }
 
-void PyramidSolver::apply(const std::vector<int>& verts, const double* from, double* to,
-                          const Vertices* tau, const PyramidSolveOptions& o,
+void PyramidSolver::apply(int color, const double* from, double* to, const PyramidSolveOptions& o,
                           const std::vector<Vec3>& pushes) const {
-  parallel_ranges(static_cast<int>(verts.size()), kMinChunk, chunks(), [&](int b, int e) {
-    for (int r = b; r < e; ++r) {
-      const int v = verts[static_cast<size_t>(r)];
+  const auto& groups = color_groups[static_cast<size_t>(color)];
+  const auto& singles = color_singles[static_cast<size_t>(color)];
+  const PlaceArgs args{this,
+                       groups.data(),
+                       group_ring.data(),
+                       group_val.data(),
+                       from,
+                       to,
+                       o.push ? push_row.data() : nullptr,
+                       pushes.data(),
+                       o.stretch};
+  void (*kernel)(const PlaceArgs&, int, int) = cpu_has_avx2_fma() ? place_avx2 : place_base;
+  // One range over the groups, then the single vertices: one wait per colour.
+  const int ng = static_cast<int>(groups.size()), ns = static_cast<int>(singles.size());
+  parallel_ranges(ng + ns, kMinChunk / 4, chunks(), [&](int b, int e) {
+    if (b < ng) kernel(args, b, std::min(e, ng));
+    for (int r = std::max(b, ng); r < e; ++r) {
+      const int v = singles[static_cast<size_t>(r - ng)];
       Vec3 p = place(v, from, o.stretch);
       if (o.push && push_row[static_cast<size_t>(v)] >= 0) {
         p += pushes[static_cast<size_t>(push_row[static_cast<size_t>(v)])];
       }
-      if (tau) p += tau->row(v).transpose();
       to[3 * v] = p(0), to[3 * v + 1] = p(1), to[3 * v + 2] = p(2);
     }
   });
 }
 
-void PyramidSolver::sweep(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o) const {
+void PyramidSolver::sweep(Vertices* X, const PyramidSolveOptions& o) const {
   // Step 2 folded into step 1: each free vertex is placed from its description plus the shift
   // its controls ask for, both from the sweep's start. The fixed point is then the same for
   // Jacobi and for Gauss-Seidel in any colour order.
   std::vector<Vec3> shift, pushes;
   if (o.push) shifts(X->data(), &shift, &pushes);
+  const int nc = static_cast<int>(colors.size());
   if (o.method == PyramidMethod::Jacobi) {
     const Vertices old = *X;
-    apply(free, old.data(), X->data(), tau, o, pushes);
+    for (int c = 0; c < nc; ++c) apply(c, old.data(), X->data(), o, pushes);
   } else {
-    for (const auto& cls : colors) apply(cls, X->data(), X->data(), tau, o, pushes);
+    for (int c = 0; c < nc; ++c) apply(c, X->data(), X->data(), o, pushes);
   }
 }
 
-void PyramidSolver::jacobi(const std::vector<int>& verts, const Vertices& X, const Vertices* tau,
-                           const PyramidSolveOptions& o, Vertices* Y) const {
-  std::vector<Vec3> shift, pushes;
-  if (o.push) shifts(X.data(), &shift, &pushes);
-  apply(verts, X.data(), Y->data(), tau, o, pushes);
-}
-
-int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveOptions& o,
-                           int max_iterations, double limit, double* move,
-                           std::vector<double>* moves, double diag) const {
+int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_iterations,
+                           double limit, double* move, std::vector<double>* moves,
+                           double diag) const {
   const int nf = static_cast<int>(free.size());
   *move = 0;
   if (nf == 0) return 0;
@@ -513,12 +723,13 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
   const int window = std::max(0, o.anderson);
   const Eigen::Index len = 3 * static_cast<Eigen::Index>(nf);
   Eigen::VectorXd f_prev, g_prev, g_acc, gamma;
-  Eigen::MatrixXd dF, dG, gram;
+  std::vector<double> dF, dG;  // column j at j * len
+  Eigen::MatrixXd gram;
   const int parts = std::max(1, std::min(16, nf / 512));
   std::vector<double> part;
   if (window > 0) {
     f_prev.resize(len), g_prev.resize(len), g_acc.resize(len);
-    dF.resize(len, window), dG.resize(len, window);
+    dF.resize(static_cast<size_t>(len) * window), dG.resize(static_cast<size_t>(len) * window);
     gram = Eigen::MatrixXd::Zero(window, window);
     part.assign(static_cast<size_t>(parts) * 2 * window, 0.0);
   }
@@ -530,7 +741,7 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
   Vertices Y;
   while (it < max_iterations) {
     Y = *X;
-    sweep(&Y, tau, o);
+    sweep(&Y, o);
     // The move is the sweep's (the fixed-point residual), not the accelerated step's.
     *move = max_move(Y, *X, free);
     if (window > 0) {
@@ -541,8 +752,8 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
         chunk(p, &b, &e);
         double* fp = f_prev.data();
         double* gp = g_prev.data();
-        double* dfh = dF.col(head).data();
-        double* dgh = dG.col(head).data();
+        double* dfh = dF.data() + head * len;
+        double* dgh = dG.data() + head * len;
         for (int r = b; r < e; ++r) {
           const int v = free[static_cast<size_t>(r)];
           for (int c = 0; c < 3; ++c) {
@@ -559,12 +770,8 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
         double* out = part.data() + static_cast<size_t>(p) * 2 * window;
         const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
                            n3 = 3 * static_cast<Eigen::Index>(e - b);
-        const auto dh = dF.col(head).segment(ib, n3);
-        const auto fs = f_prev.segment(ib, n3);
         for (int j = 0; j < n_cols; ++j) {
-          const auto dj = dF.col(j).segment(ib, n3);
-          out[j] = dh.dot(dj);
-          out[window + j] = dj.dot(fs);
+          dot2(dF.data() + j * len + ib, dfh + ib, fp + ib, n3, &out[j], &out[window + j]);
         }
       });
       if (append) {
@@ -591,9 +798,8 @@ int PyramidSolver::iterate(Vertices* X, const Vertices* tau, const PyramidSolveO
             chunk(p, &b, &e);
             const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
                                n3 = 3 * static_cast<Eigen::Index>(e - b);
-            auto acc = g_acc.segment(ib, n3);
-            acc = g_prev.segment(ib, n3);
-            for (int j = 0; j < stored; ++j) acc -= gamma(j) * dG.col(j).segment(ib, n3);
+            subtract_columns(dG.data() + ib, len, stored, gamma.data(), g_prev.data() + ib,
+                             g_acc.data() + ib, n3);
             for (int r = b; r < e; ++r) {
               const int v = free[static_cast<size_t>(r)];
               const Eigen::Index i0 = 3 * static_cast<Eigen::Index>(r);
@@ -737,7 +943,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   if (options.max_iterations == 0) return X;
 
   double move = 0;
-  last_iterations_ = level.iterate(&X, nullptr, options, options.max_iterations, limit, &move,
+  last_iterations_ = level.iterate(&X, options, options.max_iterations, limit, &move,
                                    options.record_moves ? &last_moves_ : nullptr, diag_);
   last_move_ = level.free.empty() ? 0.0 : (diag_ > 0 ? move / diag_ : move);
   return X;
