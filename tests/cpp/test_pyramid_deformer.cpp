@@ -218,6 +218,29 @@ TEST(PyramidDeformer, AndersonKernelsConvergeInTheMeasuredSweeps) {
   EXPECT_LT((X - Y).cwiseAbs().maxCoeff(), 1e-8 * diagonal(V));
 }
 
+// Placement commutes with a similarity for every vertex kind, followers included: the grid's
+// valence-2 corners (a planar fit: follow()'s SVD path) and a folded fan (its polar path).
+TEST(PyramidDeformer, PlacementCommutesWithASimilarity) {
+  Vertices V;
+  Faces F;
+  bumpy_grid(7, 6, &V, &F);
+  V(8 * 3 + 4, 0) += 1.4;  // past its ring: a folded fan, a follower with a full-rank fit
+  PyramidDeformer d(V, F, {0});
+  int followers = 0;
+  for (signed char k : d.coordinates().kind) followers += k == kPyramidFollower;
+  ASSERT_GE(followers, 5);
+  ASSERT_EQ(d.coordinates().kind[8 * 3 + 4], kPyramidFollower);
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(1.1, Eigen::Vector3d(0.3, -1, 0.6).normalized()).toRotationMatrix();
+  for (double scale : {0.6, 1.0, 2.5}) {
+    const Vertices W = (scale * V * R.transpose()).rowwise() + Eigen::RowVector3d(-1, 4, 2);
+    for (bool stretch : {false, true}) {
+      EXPECT_LT((d.reconstruct(W, stretch) - W).cwiseAbs().maxCoeff(), 1e-10 * diagonal(W))
+          << scale << " " << stretch;
+    }
+  }
+}
+
 TEST(PyramidDeformer, DescriptionInvariantUnderSimilarity) {
   Vertices V;
   Faces F;
