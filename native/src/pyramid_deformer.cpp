@@ -726,7 +726,7 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
   std::vector<double> dF, dG;  // column j at j * len
   Eigen::MatrixXd gram;
   const int parts = std::max(1, std::min(16, nf / 512));
-  std::vector<double> part;
+  std::vector<double> part, part_move(static_cast<size_t>(parts), 0.0);
   if (window > 0) {
     f_prev.resize(len), g_prev.resize(len), g_acc.resize(len);
     dF.resize(static_cast<size_t>(len) * window), dG.resize(static_cast<size_t>(len) * window);
@@ -742,8 +742,9 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
   while (it < max_iterations) {
     Y = *X;
     sweep(&Y, o);
-    // The move is the sweep's (the fixed-point residual), not the accelerated step's.
-    *move = max_move(Y, *X, free);
+    // The move is the sweep's (the fixed-point residual), not the accelerated step's. With
+    // Anderson it is taken in the pass that reads the sweep's result anyway.
+    if (window == 0) *move = max_move(Y, *X, free);
     if (window > 0) {
       const bool append = it > 0;
       const int n_cols = append ? std::min(stored + 1, window) : 0;
@@ -754,11 +755,14 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
         double* gp = g_prev.data();
         double* dfh = dF.data() + head * len;
         double* dgh = dG.data() + head * len;
+        double mx = 0;
         for (int r = b; r < e; ++r) {
           const int v = free[static_cast<size_t>(r)];
+          double d2 = 0;
           for (int c = 0; c < 3; ++c) {
             const Eigen::Index i = 3 * static_cast<Eigen::Index>(r) + c;
             const double g = Y(v, c), f = g - (*X)(v, c);
+            d2 += f * f;
             if (append) {
               dfh[i] = f - fp[i];
               dgh[i] = g - gp[i];
@@ -766,7 +770,10 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
             fp[i] = f;
             gp[i] = g;
           }
+          // NaN must not hide behind max(): it propagates as infinity
+          mx = std::isnan(d2) ? std::numeric_limits<double>::infinity() : std::max(mx, d2);
         }
+        part_move[static_cast<size_t>(p)] = mx;
         double* out = part.data() + static_cast<size_t>(p) * 2 * window;
         const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
                            n3 = 3 * static_cast<Eigen::Index>(e - b);
@@ -774,6 +781,7 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
           dot2(dF.data() + j * len + ib, dfh + ib, fp + ib, n3, &out[j], &out[window + j]);
         }
       });
+      *move = std::sqrt(*std::max_element(part_move.begin(), part_move.end()));
       if (append) {
         stored = n_cols;
         for (int j = 0; j < stored; ++j) {
