@@ -39,6 +39,8 @@ def main():
     ap.add_argument("--faces", type=int, default=50000)
     ap.add_argument("--reps", type=int, default=60)
     ap.add_argument("--keep-cpus-awake", action="store_true")
+    ap.add_argument("--anchors", type=int, default=2, help="anchor rings (bench_blender.py's)")
+    ap.add_argument("--motion", choices=("shift", "free", "scaled"), default="shift")
     ap.add_argument(
         "--update-button",
         action="store_true",
@@ -57,8 +59,9 @@ def main():
         scene, vl = bpy.context.scene, bpy.context.view_layer
         rings, sides = bb.tube_dims(args.faces)
         obj = bb.tube("MD", rings, sides)
-        empties, _ = bb.setup_md(obj, sides, max(1, (rings - 1) // 50))
+        empties, _ = bb.setup_md(obj, sides, max(1, (rings - 1) // 50), args.anchors)
         empty = empties[0]  # the top ring
+        rest_m = [e.matrix_world.copy() for e in empties]
         kb = bridge.output_key(obj)
         x = session.compute(obj, scene, None)
         s = obj.material_deform
@@ -69,31 +72,72 @@ def main():
             lambda i: (bridge.write_key(obj, kb, x + 0.001 * (i % 7)), vl.update()), args.reps
         )
 
+        def move(i):
+            if args.motion == "shift":
+                # matrix_world directly: a location change only reaches it on evaluation
+                m = empty.matrix_world.copy()
+                m.translation.x = 0.3 * math.sin(0.7 * (i + 1))
+                empty.matrix_world = m
+            else:
+                bb.pose(empties, rest_m, i, args.motion)
+
         def handler_step(i):
-            # matrix_world directly: a location change only reaches it on evaluation
-            m = empty.matrix_world.copy()
-            m.translation.x = 0.3 * math.sin(0.7 * (i + 1))
-            empty.matrix_world = m
+            move(i)
             session.apply(obj, scene, None, force=True)
 
         handler = median_ms(handler_step, args.reps)
         entry = session.entry_for(obj, scene)
         rest_check = median_ms(lambda i: session._check_rest(obj, entry), 5 * args.reps)
+        # Blender alone: the same Empty moves and updates with the object not live
+        floor = median_ms(lambda i: (move(i + 500), vl.update(), vl.update()), args.reps)
         s.live = True
         vl.update()
-        full = median_ms(lambda i: (bb.wiggle(empty, i), vl.update(), vl.update()), args.reps)
+        full = median_ms(lambda i: (move(i + 1000), vl.update(), vl.update()), args.reps)
+        # the same live updates again, timing the solver's deform() and session.apply inside them
+        inside = {"deform": [], "apply": []}
+        deformer = entry.solver.deformer
+        apply_fn = session.apply
+
+        class Timed:
+            def __getattr__(self, name):
+                return getattr(deformer, name)
+
+            def deform(self, *a, **k):
+                t = time.perf_counter()
+                out = deformer.deform(*a, **k)
+                inside["deform"].append(time.perf_counter() - t)
+                return out
+
+        def timed_apply(*a, **k):
+            t = time.perf_counter()
+            out = apply_fn(*a, **k)
+            inside["apply"].append(time.perf_counter() - t)
+            return out
+
+        entry.solver.deformer, session.apply = Timed(), timed_apply
+        try:
+            full2 = median_ms(lambda i: (move(i + 2000), vl.update(), vl.update()), args.reps)
+        finally:
+            entry.solver.deformer, session.apply = deformer, apply_fn
         button = update_button(obj, scene, vl) if args.update_button else None
     finally:
         for p in spinners:
             p.kill()
     print(
         f"Blender {bpy.app.version_string}, {2 * len(obj.data.polygons)} triangles, "
-        f"{len(obj.data.vertices)} vertices" + (", CPUs kept awake" if spinners else "")
+        f"{len(obj.data.vertices)} vertices, {args.anchors} anchors, motion {args.motion!r}"
+        + (", CPUs kept awake" if spinners else "")
     )
     print(f"re-evaluation after the shape-key write (ms): {reeval:.2f}")
     print(f"handler body, session.apply (ms):           {handler:.2f}")
     print(f"  of which the rest check (ms):              {rest_check:.3f}")
     print(f"full live update (ms):                       {full:.2f}")
+    print(f"  the same Empty moves, object not live (ms):  {floor:.3f}")
+    d_in = 1000 * statistics.median(inside["deform"])
+    a_in = 1000 * statistics.median(inside["apply"])
+    print(f"  timed inside the live updates ({full2:.2f} ms each):")
+    print(f"    session.apply (ms):                      {a_in:.3f}")
+    print(f"    of which deform() (ms):                  {d_in:.3f}")
     if button:
         print(button)
 
