@@ -219,10 +219,11 @@ double max_move(const Vertices& A, const Vertices& B, const std::vector<int>& ve
 }  // namespace
 
 // The placement kernel's unit: four free vertices of one colour and one valence m, placed side by
-// side (four lanes of a Vec4d) so that the 2m + 1 square roots per vertex run four at a time. Their
-// m neighbour entries are group_ring[4 e + lane] and group_val[12 e + 4 f + lane] for
-// e = entry .. entry + m - 1 and the fields f = 0: w_i / l_i, 1: w_i, 2: cot(beta_i). The last
-// group of a valence repeats its last vertex to fill the lanes (same inputs, same result).
+// side (four lanes of a Vec4d) so that the square roots (2m + 1 per vertex with stretch, m + 1
+// without) run four at a time. Their m neighbour entries are group_ring[4 e + lane] and
+// group_val[12 e + 4 f + lane] for e = entry .. entry + m - 1 and the fields f = 0: w_i / l_i,
+// 1: w_i, 2: cot(beta_i). The last group of a valence repeats its last vertex to fill the lanes;
+// only the first of the repeats is written.
 struct PlaceGroup {
   int v[4];
   int m;
@@ -375,6 +376,8 @@ void PyramidSolver::build_groups() {
   const auto& off = coords.offsets;
   color_groups.assign(colors.size(), {});
   color_singles.assign(colors.size(), {});
+  group_ring.clear();
+  group_val.clear();
   for (size_t c = 0; c < colors.size(); ++c) {
     std::vector<std::vector<int>> by_valence(kGroupMaxValence + 1);
     for (int v : colors[c]) {
@@ -519,7 +522,8 @@ MD_ALWAYS_INLINE void gather3(const double* X, const int* idx, Vec4d* x, Vec4d* 
 }
 
 // PyramidSolver::place for the four vertices of each group in [gb, ge), written with their
-// step-2 shift into a.to: the same arithmetic, four lanes at a time. A lane whose current
+// step-2 shift into a.to: the same arithmetic to round-off (products by 1/m and 1/|N| where
+// place() divides, FMA in the AVX2 build), four lanes at a time. A lane whose current
 // neighbours have no plane (the scalar path's follower fallback) is redone by the scalar code.
 MD_ALWAYS_INLINE void place_body(const PlaceArgs& a, int gb, int ge) {
   const Vec4d zero = {0, 0, 0, 0}, one = {1, 1, 1, 1};
@@ -607,6 +611,9 @@ MD_ALWAYS_INLINE void place_body(const PlaceArgs& a, int gb, int ge) {
     const Vec4d ox = cx + vx + h * nx, oy = cy + vy + h * ny, oz = cz + vz + h * nz;
     for (int l = 0; l < 4; ++l) {
       const int v = G.v[l];
+      // A padding lane repeats its predecessor: placing it again would, in place (Gauss-Seidel)
+      // and on the scalar fallback, start from the vertex's new position.
+      if (l > 0 && v == G.v[l - 1]) break;
       Vec3 p = plane[l] ? Vec3(ox[l], oy[l], oz[l]) : a.solver->place(v, a.from, a.stretch);
       if (a.push_row) {
         const int r = a.push_row[v];

@@ -140,7 +140,8 @@ TEST(PyramidDeformer, OneJacobiSweepIsThePlacementOfEveryVertex) {
     // The ring of an interior vertex flattened onto a line: no plane for its placement.
     const std::vector<int>& off = d.coordinates().offsets;
     int w = n / 2;
-    while (d.coordinates().kind[w] != kPyramidInterior || off[w + 1] - off[w] > 16) ++w;
+    while (w < n && (d.coordinates().kind[w] != kPyramidInterior || off[w + 1] - off[w] > 16)) ++w;
+    ASSERT_LT(w, n);
     for (int s = off[w]; s < off[w + 1]; ++s)
       start.row(d.coordinates().neighbors[s]) << 0.3 * s, 0, 0;
     Vertices C(2, 3);
