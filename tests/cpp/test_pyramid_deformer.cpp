@@ -41,6 +41,15 @@ void dome(int k, Vertices* V, Faces* F) {
     F->row(3 * i + 2) << q, r, 1 + k + (i + 1) % k;
   }
 }
+
+// The 12-segment bar of length 6 with both end rings (4 vertices each) as controls, interleaved:
+// even entries the near ring, odd entries the far one.
+std::vector<int> bar_with_end_controls(Vertices* V, Faces* F) {
+  meshes::make_bar(12, 6.0, V, F);
+  std::vector<int> control;
+  for (int j = 0; j < 4; ++j) control.push_back(j), control.push_back(4 * 12 + j);
+  return control;
+}
 }  // namespace
 
 TEST(VertexFans, ClosedOpenAndOrderedByFaces) {
@@ -98,9 +107,7 @@ TEST(PyramidDeformer, ReconstructsTheRestMeshAndKeepsItAtRest) {
 TEST(PyramidDeformer, RigidControlsGiveTheMovedRestMesh) {
   Vertices V;
   Faces F;
-  meshes::make_bar(12, 6.0, &V, &F);
-  std::vector<int> control;
-  for (int j = 0; j < 4; ++j) control.push_back(j), control.push_back(4 * 12 + j);
+  const std::vector<int> control = bar_with_end_controls(&V, &F);
   PyramidDeformer d(V, F, control);
   const Eigen::Matrix3d R =
       Eigen::AngleAxisd(0.9, Eigen::Vector3d(1, 2, -1).normalized()).toRotationMatrix();
@@ -181,9 +188,7 @@ TEST(PyramidDeformer, OneJacobiSweepIsThePlacementOfEveryVertex) {
 TEST(PyramidDeformer, AndersonKernelsConvergeInTheMeasuredSweeps) {
   Vertices V;
   Faces F;
-  meshes::make_bar(12, 6.0, &V, &F);
-  std::vector<int> control;
-  for (int j = 0; j < 4; ++j) control.push_back(j), control.push_back(4 * 12 + j);
+  const std::vector<int> control = bar_with_end_controls(&V, &F);
   PyramidDeformer d(V, F, control);
   const Eigen::Matrix3d R = Eigen::AngleAxisd(0.8, Eigen::Vector3d::UnitX()).toRotationMatrix();
   Vertices C(8, 3);
