@@ -216,6 +216,31 @@ def test_undo_live_deformation_restores_output_bit_for_bit():
     assert output(obj).tobytes() == second.tobytes()
 
 
+def test_undo_rebind_at_current_pose_restores_the_old_bind_pose():
+    # The live path keeps the bind matrices with the cached solver, and a rebind at the current
+    # pose keeps the solver (same mesh, anchors and stiffness): undoing it must bring the old
+    # bind pose back into the deformation, not only into the file.
+    obj = bound_bar()
+    top_empty(obj).location.x += 0.5
+    update()
+    push("moved")
+    first = output(obj).copy()
+    assert np.abs(first - rest(obj)).max() > 0.3
+    assert run(bpy.ops.object.material_deform_bind, at_current_pose=True) == {"FINISHED"}
+    np.testing.assert_allclose(output(obj), rest(obj), atol=1e-6)  # the new bind pose
+    top_empty(obj).location.x += 0.3
+    update()
+    push("moved again")
+    obj = undo()  # the second move
+    obj = undo()  # the rebind
+    assert top_empty(obj).location.x == 0.5
+    top_empty(obj).location.x = 0.6  # a live update relative to the first bind
+    update()
+    top_empty(obj).location.x = 0.5
+    update()
+    np.testing.assert_allclose(output(obj), first, atol=1e-6)
+
+
 def test_undo_update_operator_then_live_on_recomputes():
     obj = bound_bar()
     obj.material_deform.live = False
