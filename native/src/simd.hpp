@@ -175,6 +175,12 @@ MD_ALWAYS_INLINE Vec4d high_halves(const Vec4d& a, const Vec4d& b) {
 
 #endif
 
+// True if some lane of a comparison's mask (-1 where true) is set.
+template <class Mask>
+MD_ALWAYS_INLINE bool any_lane(const Mask& m) {
+  return (m[0] | m[1] | m[2] | m[3]) != 0;
+}
+
 static_assert(sizeof(Vec4d) == 4 * sizeof(double) && alignof(Vec4d) == alignof(double),
               "Vec4d must overlay four doubles of an array");
 

@@ -92,8 +92,10 @@ MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
   // between Vec4d and Vec4u keeps the bits, simd.hpp.)
   const Vec4u biased = (Vec4u)t - (Vec4u)shifter + 1023;  // unsigned: wraps, never UB
   p *= (Vec4d)(biased << 52);
-  for (int l = 0; l < 4; ++l) {
-    if (!(std::abs(s[l]) <= 700.0)) p[l] = std::exp(s[l]);  // beyond 2^n's exponent range
+  if (any_lane(s * s > 490000.0)) {  // one test for the four lanes: the loop is the rare case
+    for (int l = 0; l < 4; ++l) {
+      if (!(std::abs(s[l]) <= 700.0)) p[l] = std::exp(s[l]);  // beyond 2^n's exponent range
+    }
   }
   *out = p;
 }
@@ -267,12 +269,14 @@ MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x, const Vec4d& y, const Vec4d& z,
     A = A * t2 + kSeries.a[j];
     B = B * t2 + kSeries.b[j];
   }
-  for (int l = 0; l < kGroupFaces; ++l) {
-    if (t2[l] > kSeriesMaxT2) {  // not reached by convex blends of angles <= pi
-      double a, b;
-      trig_coefficients(t2[l], &a, &b);
-      A[l] = a;
-      B[l] = b;
+  if (any_lane(t2 > kSeriesMaxT2)) {  // not reached by convex blends of angles <= pi
+    for (int l = 0; l < kGroupFaces; ++l) {
+      if (t2[l] > kSeriesMaxT2) {
+        double a, b;
+        trig_coefficients(t2[l], &a, &b);
+        A[l] = a;
+        B[l] = b;
+      }
     }
   }
   A *= sc;
@@ -305,6 +309,19 @@ MD_ALWAYS_INLINE void blend_similarity_logs(const double* P, int k, const double
                                             int b, Vec4d* x, Vec4d* y, Vec4d* z, Vec4d* s,
                                             Vec4d* wb) {
   *x = *y = *z = *s = Vec4d{0.0, 0.0, 0.0, 0.0};
+  if (f0 + kGroupFaces <= m && b < 0) {  // a full group: no test per lane (the hottest loop)
+    const double* r = W + static_cast<size_t>(f0) * k;
+    Vec4d sx = *x, sy = sx, sz = sx, ss = sx;
+    for (int a = 0; a < k; ++a) {
+      const Vec4d w = {r[a], r[k + a], r[2 * k + a], r[3 * k + a]};
+      sx += w * P[4 * a];
+      sy += w * P[4 * a + 1];
+      sz += w * P[4 * a + 2];
+      ss += w * P[4 * a + 3];
+    }
+    *x = sx, *y = sy, *z = sz, *s = ss;
+    return;
+  }
   for (int a = 0; a < k; ++a) {
     Vec4d w;
     lane_weights(W, k, m, f0, a, &w);

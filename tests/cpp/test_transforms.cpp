@@ -137,13 +137,8 @@ TEST(Transforms, BlendAllFastPathMatchesGeneralPath) {
 namespace {
 // blend_groups (the per-pose kernel: Rodrigues series and a 4-wide exp of the blended log-scale)
 // against blend_logs (matrix exponential); worst relative error over m faces.
-double grouped_blend_error(const std::vector<TransformLog>& logs, int m) {
-  const int k = static_cast<int>(logs.size());
-  RowMatrix W(m, k);
-  for (int i = 0; i < m; ++i) {
-    for (int a = 0; a < k; ++a) W(i, a) = 1.0 + std::sin(0.37 * i * (a + 1) + a);
-    W.row(i) /= W.row(i).sum();
-  }
+double grouped_blend_error(const std::vector<TransformLog>& logs, const RowMatrix& W) {
+  const int m = static_cast<int>(W.rows());
   const int groups = (m + kGroupFaces - 1) / kGroupFaces;
   std::vector<double> out(static_cast<size_t>(kGroupStride) * groups);
   blend_groups(logs, W, 0, groups, out.data());
@@ -157,6 +152,17 @@ double grouped_blend_error(const std::vector<TransformLog>& logs, int m) {
     worst = std::max(worst, (got - ref).norm() / ref.norm());
   }
   return worst;
+}
+
+// The same with m faces of positive weights that sum to 1, different per face.
+double grouped_blend_error(const std::vector<TransformLog>& logs, int m) {
+  const int k = static_cast<int>(logs.size());
+  RowMatrix W(m, k);
+  for (int i = 0; i < m; ++i) {
+    for (int a = 0; a < k; ++a) W(i, a) = 1.0 + std::sin(0.37 * i * (a + 1) + a);
+    W.row(i) /= W.row(i).sum();
+  }
+  return grouped_blend_error(logs, W);
 }
 }  // namespace
 
@@ -183,6 +189,47 @@ TEST(Transforms, GroupedBlendBeyondTheVectorExpRange) {
   logs[1].log_stretch = -705.0 * Eigen::Matrix3d::Identity();
   logs[1].rotation = Eigen::Vector3d(0.0, 0.0, 0.5);
   EXPECT_LT(grouped_blend_error(logs, 41), 1e-13);
+}
+
+TEST(Transforms, GroupedBlendBeyondTheExponentRangeOf2n) {
+  // A blended log-scale of -720 (weights outside [0, 1]): e^-720 is subnormal, which the
+  // vector exp's 2^n cannot build, so that lane takes std::exp. Pure scales: the diagonal is the
+  // scale itself.
+  std::vector<TransformLog> logs(2);
+  logs[0].log_stretch = -705.0 * Eigen::Matrix3d::Identity();
+  logs[1].log_stretch = 705.0 * Eigen::Matrix3d::Identity();
+  RowMatrix W(5, 2);
+  for (int i = 0; i < 5; ++i) W.row(i) << 0.5, 0.5;
+  const double w0 = (720.0 / 705.0 + 1.0) / 2.0;  // -705 w0 + 705 (1 - w0) = -720
+  W.row(2) << w0, 1.0 - w0;
+  for (const bool avx2 : {true, false}) {
+    const bool before = set_avx2_kernels_enabled(avx2);
+    std::vector<double> out(static_cast<size_t>(kGroupStride) * 2);
+    blend_groups(logs, W, 0, 2, out.data());
+    set_avx2_kernels_enabled(before);
+    const double want = std::exp(-705.0 * w0 + 705.0 * (1.0 - w0));
+    EXPECT_GT(want, 0.0);
+    EXPECT_NEAR(out[2] / want, 1.0, 1e-9);  // face 2: group 0, lane 2, entry (0,0)
+    EXPECT_EQ(out[0], 1.0);                 // face 0: weights 0.5, 0.5, scale 1
+  }
+}
+
+TEST(Transforms, GroupedBlendBeyondTheRotationSeries) {
+  // Weights outside [0, 1] blend angles far beyond pi, where the Rodrigues series would be off
+  // (t^2 > 10): single lanes take sin/cos, faces 1 and 6 of 9 (both kernel builds).
+  const std::vector<TransformLog> logs = {
+      transform_log(
+          Eigen::AngleAxisd(3.0, Eigen::Vector3d(1, 2, 0).normalized()).toRotationMatrix()),
+      transform_log(Eigen::Matrix3d::Identity())};
+  RowMatrix W(9, 2);
+  for (int i = 0; i < 9; ++i) W.row(i) << 0.5, 0.5;
+  W.row(1) << 3.0, -2.0;  // 9 rad
+  W.row(6) << 2.5, -1.5;  // 7.5 rad
+  for (const bool avx2 : {true, false}) {
+    const bool before = set_avx2_kernels_enabled(avx2);
+    EXPECT_LT(grouped_blend_error(logs, W), 1e-13);
+    set_avx2_kernels_enabled(before);
+  }
 }
 
 namespace {
