@@ -729,13 +729,13 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
   // pool's workers.)
   const int window = std::max(0, o.anderson);
   const Eigen::Index len = 3 * static_cast<Eigen::Index>(nf);
-  Eigen::VectorXd f_prev, g_prev, g_acc, gamma;
+  Eigen::VectorXd f_prev, g_prev, gamma;
   std::vector<double> dF, dG;  // column j at j * len
   Eigen::MatrixXd gram;
   const int parts = std::max(1, std::min(16, nf / 512));
   std::vector<double> part, part_move(static_cast<size_t>(parts), 0.0);
   if (window > 0) {
-    f_prev.resize(len), g_prev.resize(len), g_acc.resize(len);
+    f_prev.resize(len), g_prev.resize(len);
     dF.resize(static_cast<size_t>(len) * window), dG.resize(static_cast<size_t>(len) * window);
     gram = Eigen::MatrixXd::Zero(window, window);
     part.assign(static_cast<size_t>(parts) * 2 * window, 0.0);
@@ -745,86 +745,106 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
     *e = static_cast<int>(static_cast<int64_t>(nf) * (p + 1) / parts);
   };
   int stored = 0, head = 0, it = 0;
-  Vertices Y;
+  if (window == 0) {
+    Vertices Y;
+    while (it < max_iterations) {
+      Y = *X;
+      sweep(&Y, o);
+      *move = max_move(Y, *X, free);
+      X->swap(Y);
+      ++it;
+      if (!std::isfinite(*move))
+        throw std::runtime_error("pyramid deformer: the iteration diverged");
+      if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
+      if (*move < limit) break;
+    }
+    return it;
+  }
+  // With Anderson the sweep runs in place on X: the iterate it started from is kept packed in
+  // x_now (the accelerated step's output, or the previous sweep's result), so no copy of the
+  // whole mesh is made per sweep.
+  Eigen::VectorXd x_now(len);
+  for (int r = 0; r < nf; ++r) {
+    for (int c = 0; c < 3; ++c) x_now(3 * r + c) = (*X)(free[static_cast<size_t>(r)], c);
+  }
   while (it < max_iterations) {
-    Y = *X;
-    sweep(&Y, o);
-    // The move is the sweep's (the fixed-point residual), not the accelerated step's. With
-    // Anderson it is taken in the pass that reads the sweep's result anyway.
-    if (window == 0) *move = max_move(Y, *X, free);
-    if (window > 0) {
-      const bool append = it > 0;
-      const int n_cols = append ? std::min(stored + 1, window) : 0;
-      run_tasks(parts, [&](int p) {
-        int b, e;
-        chunk(p, &b, &e);
-        double* fp = f_prev.data();
-        double* gp = g_prev.data();
-        double* dfh = dF.data() + head * len;
-        double* dgh = dG.data() + head * len;
-        double mx = 0;
-        for (int r = b; r < e; ++r) {
-          const int v = free[static_cast<size_t>(r)];
-          double d2 = 0;
-          for (int c = 0; c < 3; ++c) {
-            const Eigen::Index i = 3 * static_cast<Eigen::Index>(r) + c;
-            const double g = Y(v, c), f = g - (*X)(v, c);
-            d2 += f * f;
-            if (append) {
-              dfh[i] = f - fp[i];
-              dgh[i] = g - gp[i];
-            }
-            fp[i] = f;
-            gp[i] = g;
+    sweep(X, o);
+    // The move is the sweep's (the fixed-point residual), not the accelerated step's, taken in
+    // the pass that reads the sweep's result anyway.
+    const bool append = it > 0;
+    const int n_cols = append ? std::min(stored + 1, window) : 0;
+    run_tasks(parts, [&](int p) {
+      int b, e;
+      chunk(p, &b, &e);
+      double* fp = f_prev.data();
+      double* gp = g_prev.data();
+      const double* xp = x_now.data();
+      double* dfh = dF.data() + head * len;
+      double* dgh = dG.data() + head * len;
+      double mx = 0;
+      for (int r = b; r < e; ++r) {
+        const int v = free[static_cast<size_t>(r)];
+        double d2 = 0;
+        for (int c = 0; c < 3; ++c) {
+          const Eigen::Index i = 3 * static_cast<Eigen::Index>(r) + c;
+          const double g = (*X)(v, c), f = g - xp[i];
+          d2 += f * f;
+          if (append) {
+            dfh[i] = f - fp[i];
+            dgh[i] = g - gp[i];
           }
-          // NaN must not hide behind max(): it propagates as infinity
-          mx = std::isnan(d2) ? std::numeric_limits<double>::infinity() : std::max(mx, d2);
+          fp[i] = f;
+          gp[i] = g;
         }
-        part_move[static_cast<size_t>(p)] = mx;
-        double* out = part.data() + static_cast<size_t>(p) * 2 * window;
-        const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
-                           n3 = 3 * static_cast<Eigen::Index>(e - b);
-        for (int j = 0; j < n_cols; ++j) {
-          dot2(dF.data() + j * len + ib, dfh + ib, fp + ib, n3, &out[j], &out[window + j]);
-        }
-      });
-      *move = std::sqrt(*std::max_element(part_move.begin(), part_move.end()));
-      if (append) {
-        stored = n_cols;
-        for (int j = 0; j < stored; ++j) {
-          double s = 0;
-          for (int p = 0; p < parts; ++p) s += part[static_cast<size_t>(p) * 2 * window + j];
-          gram(head, j) = gram(j, head) = s;
-        }
-        head = (head + 1) % window;
+        // NaN must not hide behind max(): it propagates as infinity
+        mx = std::isnan(d2) ? std::numeric_limits<double>::infinity() : std::max(mx, d2);
       }
-      if (stored > 0) {
-        Eigen::VectorXd rhs = Eigen::VectorXd::Zero(stored);
-        for (int p = 0; p < parts; ++p) {
-          for (int j = 0; j < stored; ++j)
-            rhs(j) += part[static_cast<size_t>(p) * 2 * window + window + j];
-        }
-        Eigen::MatrixXd A = gram.topLeftCorner(stored, stored);
-        A.diagonal().array() += 1e-10 * A.diagonal().maxCoeff() + 1e-300;
-        gamma = A.ldlt().solve(rhs);
-        if (gamma.allFinite()) {
-          run_tasks(parts, [&](int p) {
-            int b, e;
-            chunk(p, &b, &e);
-            const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
-                               n3 = 3 * static_cast<Eigen::Index>(e - b);
-            subtract_columns(dG.data() + ib, len, stored, gamma.data(), g_prev.data() + ib,
-                             g_acc.data() + ib, n3);
-            for (int r = b; r < e; ++r) {
-              const int v = free[static_cast<size_t>(r)];
-              const Eigen::Index i0 = 3 * static_cast<Eigen::Index>(r);
-              for (int c = 0; c < 3; ++c) Y(v, c) = g_acc(i0 + c);
-            }
-          });
-        }
+      part_move[static_cast<size_t>(p)] = mx;
+      double* out = part.data() + static_cast<size_t>(p) * 2 * window;
+      const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
+                         n3 = 3 * static_cast<Eigen::Index>(e - b);
+      for (int j = 0; j < n_cols; ++j) {
+        dot2(dF.data() + j * len + ib, dfh + ib, fp + ib, n3, &out[j], &out[window + j]);
+      }
+    });
+    *move = std::sqrt(*std::max_element(part_move.begin(), part_move.end()));
+    if (append) {
+      stored = n_cols;
+      for (int j = 0; j < stored; ++j) {
+        double sum = 0;
+        for (int p = 0; p < parts; ++p) sum += part[static_cast<size_t>(p) * 2 * window + j];
+        gram(head, j) = gram(j, head) = sum;
+      }
+      head = (head + 1) % window;
+    }
+    bool accelerated = false;
+    if (stored > 0) {
+      Eigen::VectorXd rhs = Eigen::VectorXd::Zero(stored);
+      for (int p = 0; p < parts; ++p) {
+        for (int j = 0; j < stored; ++j)
+          rhs(j) += part[static_cast<size_t>(p) * 2 * window + window + j];
+      }
+      Eigen::MatrixXd A = gram.topLeftCorner(stored, stored);
+      A.diagonal().array() += 1e-10 * A.diagonal().maxCoeff() + 1e-300;
+      gamma = A.ldlt().solve(rhs);
+      if (gamma.allFinite()) {
+        accelerated = true;
+        run_tasks(parts, [&](int p) {
+          int b, e;
+          chunk(p, &b, &e);
+          const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
+                             n3 = 3 * static_cast<Eigen::Index>(e - b);
+          subtract_columns(dG.data() + ib, len, stored, gamma.data(), g_prev.data() + ib,
+                           x_now.data() + ib, n3);
+          for (int r = b; r < e; ++r) {
+            const int v = free[static_cast<size_t>(r)];
+            const Eigen::Index i0 = 3 * static_cast<Eigen::Index>(r);
+            for (int c = 0; c < 3; ++c) (*X)(v, c) = x_now(i0 + c);
+          }
+        });
       }
     }
-    X->swap(Y);
+    if (!accelerated) x_now = g_prev;  // the plain step: X holds the sweep's result already
     ++it;
     if (!std::isfinite(*move)) throw std::runtime_error("pyramid deformer: the iteration diverged");
     if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
