@@ -479,15 +479,19 @@ def _output_key(obj, entry: Entry):
     return kb
 
 
-def _bind_matrices(obj, entry: Entry) -> tuple[np.ndarray, np.ndarray]:
-    """(k,4,4) anchor and (4,4) object matrices at bind, kept in the entry: they change only when
-    binding (a new entry), placing an anchor and on undo, which drop them."""
+def _bind_matrices(obj, entry: Entry) -> tuple:
+    """(k,4,4) anchor and (4,4) object matrices at bind (None for files bound before the latter
+    was kept), and the anchors' bytes; kept in the entry: they change only when binding (a new
+    entry), placing an anchor and on undo, which drop them."""
     got = entry.extra.get("bind_matrices")
     if got is None:
         s = settings(obj)
         bind_m = np.array([tuple(a.bind_matrix) for a in s.anchors], dtype=np.float64)
         m_obj_bind = np.array(tuple(s.obj_bind_matrix), dtype=np.float64).reshape(4, 4)
-        got = entry.extra["bind_matrices"] = (bind_m.reshape(-1, 4, 4), m_obj_bind)
+        if not m_obj_bind.any():  # bound before the object's matrix was kept: never moved
+            m_obj_bind = None
+        bind_m = bind_m.reshape(-1, 4, 4)
+        got = entry.extra["bind_matrices"] = (bind_m, m_obj_bind, (bind_m + 0.0).tobytes())
     return got
 
 
@@ -510,10 +514,13 @@ def transforms_now(obj, entry: Entry, scene, depsgraph=None, mats=None) -> np.nd
     if m_obj is None:
         raise BindError("Object is not evaluated here")
     now = np.stack(mats)
-    bind_m, m_obj_bind = _bind_matrices(obj, entry)
-    if not m_obj_bind.any():  # bound before the object's matrix was kept: as if it never moved
+    bind_m, m_obj_bind, bind_bytes = _bind_matrices(obj, entry)
+    if m_obj_bind is None:  # as if the object never moved
         m_obj_bind = m_obj
-    if np.array_equal(now, bind_m) and np.array_equal(m_obj, m_obj_bind):
+    # Compared as bytes, 3 us less than np.array_equal; + 0.0 turns -0.0 into 0.0 first.
+    if (now + 0.0).tobytes() == bind_bytes and (
+        m_obj is m_obj_bind or (m_obj + 0.0).tobytes() == (m_obj_bind + 0.0).tobytes()
+    ):
         return None
     try:
         return entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m, m_obj_bind)
