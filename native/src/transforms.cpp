@@ -302,34 +302,45 @@ MD_ALWAYS_INLINE void lane_weights(const double* W, int k, int m, int f0, int a,
   }
 }
 
+// Weights of anchor a for the four faces of a full group (f0 + 4 <= m), straight from the rows:
+// no test per lane, and built in registers (the tests made GCC assemble the vector through the
+// stack, a store-forwarding stall per anchor; the blend's hottest loop).
+#define MD_FULL_GROUP_WEIGHTS(W, k, f0, a)                                                         \
+  Vec4d {                                                                                          \
+    (W)[static_cast<size_t>(f0) * (k) + (a)], (W)[static_cast<size_t>(f0 + 1) * (k) + (a)],        \
+        (W)[static_cast<size_t>(f0 + 2) * (k) + (a)], (W)[static_cast<size_t>(f0 + 3) * (k) + (a)] \
+  }
+
 // Weighted sum over the k anchors of the similarity logs P (4 per anchor: w, s) for the four
 // faces of group f0: (x, y, z) the rotation log, s the log-scale. If b >= 0, *wb receives the
-// weights of anchor b.
+// weights of anchor b. kFull: the group has four faces.
+template <bool kFull>
+MD_ALWAYS_INLINE void blend_similarity_logs_t(const double* P, int k, const double* W, int m,
+                                              int f0, int b, Vec4d* x, Vec4d* y, Vec4d* z, Vec4d* s,
+                                              Vec4d* wb) {
+  Vec4d sx = {0.0, 0.0, 0.0, 0.0}, sy = sx, sz = sx, ss = sx;
+  for (int a = 0; a < k; ++a) {
+    Vec4d w;
+    if constexpr (kFull) {
+      w = MD_FULL_GROUP_WEIGHTS(W, k, f0, a);
+    } else {
+      lane_weights(W, k, m, f0, a, &w);
+    }
+    sx += w * P[4 * a];
+    sy += w * P[4 * a + 1];
+    sz += w * P[4 * a + 2];
+    ss += w * P[4 * a + 3];
+    if (a == b) *wb = w;
+  }
+  *x = sx, *y = sy, *z = sz, *s = ss;
+}
 MD_ALWAYS_INLINE void blend_similarity_logs(const double* P, int k, const double* W, int m, int f0,
                                             int b, Vec4d* x, Vec4d* y, Vec4d* z, Vec4d* s,
                                             Vec4d* wb) {
-  *x = *y = *z = *s = Vec4d{0.0, 0.0, 0.0, 0.0};
-  if (f0 + kGroupFaces <= m && b < 0) {  // a full group: no test per lane (the hottest loop)
-    const double* r = W + static_cast<size_t>(f0) * k;
-    Vec4d sx = *x, sy = sx, sz = sx, ss = sx;
-    for (int a = 0; a < k; ++a) {
-      const Vec4d w = {r[a], r[k + a], r[2 * k + a], r[3 * k + a]};
-      sx += w * P[4 * a];
-      sy += w * P[4 * a + 1];
-      sz += w * P[4 * a + 2];
-      ss += w * P[4 * a + 3];
-    }
-    *x = sx, *y = sy, *z = sz, *s = ss;
-    return;
-  }
-  for (int a = 0; a < k; ++a) {
-    Vec4d w;
-    lane_weights(W, k, m, f0, a, &w);
-    *x += w * P[4 * a];
-    *y += w * P[4 * a + 1];
-    *z += w * P[4 * a + 2];
-    *s += w * P[4 * a + 3];
-    if (a == b) *wb = w;
+  if (f0 + kGroupFaces <= m) {
+    blend_similarity_logs_t<true>(P, k, W, m, f0, b, x, y, z, s, wb);
+  } else {
+    blend_similarity_logs_t<false>(P, k, W, m, f0, b, x, y, z, s, wb);
   }
 }
 
@@ -431,6 +442,15 @@ MD_TARGET_AVX2 void blend_one_stretch_avx2(const double* P, int k, int b, const 
   blend_one_stretch_body(P, k, b, lambda, Q, W, m, gb, ge, out);
 }
 
+// (x, y, z) += w * rotation log, L += w * log S (six entries) for one anchor's general log p.
+MD_ALWAYS_INLINE void add_general_log(const double* p, const Vec4d& w, Vec4d* x, Vec4d* y, Vec4d* z,
+                                      Vec4d* L) {
+  *x += w * p[0];
+  *y += w * p[1];
+  *z += w * p[2];
+  for (int e = 0; e < 6; ++e) L[e] += w * p[3 + e];
+}
+
 // Any anchors: exp(L) = e^s exp(D) with D = L - s I, s = tr L / 3, by scaling and squaring:
 // exp(D) = exp(D / 2^j)^(2^j) with |D / 2^j|_F <= 1/4 and a Taylor polynomial (Horner) whose
 // remainder r^(K+1)/(K+1)! is below 1e-17 (r = the group's largest |D / 2^j|_F). j and K are
@@ -441,14 +461,16 @@ MD_ALWAYS_INLINE void blend_taylor_body(const double* P, int k, const double* W,
     const int f0 = kGroupFaces * g;
     const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
     Vec4d x = zero, y = zero, z = zero, L[6] = {zero, zero, zero, zero, zero, zero};
-    for (int a = 0; a < k; ++a) {
-      Vec4d w;
-      lane_weights(W, k, m, f0, a, &w);
-      const double* p = P + kGeneralStride * a;
-      x += w * p[0];
-      y += w * p[1];
-      z += w * p[2];
-      for (int e = 0; e < 6; ++e) L[e] += w * p[3 + e];
+    if (f0 + kGroupFaces <= m) {
+      for (int a = 0; a < k; ++a) {
+        add_general_log(P + kGeneralStride * a, MD_FULL_GROUP_WEIGHTS(W, k, f0, a), &x, &y, &z, L);
+      }
+    } else {
+      for (int a = 0; a < k; ++a) {
+        Vec4d w;
+        lane_weights(W, k, m, f0, a, &w);
+        add_general_log(P + kGeneralStride * a, w, &x, &y, &z, L);
+      }
     }
     const Vec4d s = (L[0] + L[1] + L[2]) * (1.0 / 3.0);
     Vec4d D[6] = {L[0] - s, L[1] - s, L[2] - s, L[3], L[4], L[5]};
