@@ -207,6 +207,35 @@ MUTATIONS = [
         "return c + (Rp * (row(R0, v) - c0));",
         "followers (polar path) ignore the scale of their neighbourhood",
     ),
+    # Session 10: the blend's weight reads and lane fallbacks, the pyramid's in-place sweeps.
+    M(
+        "T1",
+        "native/src/transforms.cpp",
+        "if (any_lane(t2 > kSeriesMaxT2)) {",
+        "if (false && any_lane(t2 > kSeriesMaxT2)) {",
+        "blended angles beyond the Rodrigues series' range keep the series",
+    ),
+    M(
+        "T2",
+        "native/src/transforms.cpp",
+        "if (any_lane(s * s > 490000.0)) {",
+        "if (false && any_lane(s * s > 490000.0)) {",
+        "the vector exp's 2^n is used beyond its exponent range",
+    ),
+    M(
+        "T3",
+        "native/src/transforms.cpp",
+        "(W)[static_cast<size_t>(f0 + 2) * (k) + (a)]",
+        "(W)[static_cast<size_t>(f0 + 1) * (k) + (a)]",
+        "a full face group's third face takes the second face's weights",
+    ),
+    M(
+        "P8",
+        "native/src/pyramid_deformer.cpp",
+        "if (!accelerated) x_now = g_prev;",
+        "",
+        "after a plain (unaccelerated) step Anderson measures the move from the stale iterate",
+    ),
     M(
         "P4",
         "native/src/pyramid_deformer.cpp",
