@@ -55,15 +55,14 @@ def after_undo(scene, objects) -> None:
         del _cache[key]
     _stale.clear()
     _unsettled.clear()
+    for entry in _cache.values():  # every scene's objects: undo restores all of them
+        entry.last_key = None  # the output key was restored too: rewrite it on next update
+        entry.extra.pop("bind_matrices", None)  # so were the bind matrices
+        entry.key_pointer = 0  # and its block may live elsewhere now
     for obj in scene.objects:
         key = obj.as_pointer()
         if key not in bound:
             continue
-        entry = _cache.get(key)
-        if entry is not None:
-            entry.last_key = None  # the output key was restored too: rewrite it on next update
-            entry.extra.pop("bind_matrices", None)  # so were the bind matrices
-            entry.key_pointer = 0  # and its block may live elsewhere now
         if obj.mode == "OBJECT":
             try:
                 full_check(obj, scene)
@@ -236,6 +235,9 @@ def bind(
         kb_name = bridge.OUTPUT_KEY  # an old key of the default name: reuse it
     progress(0.9, "Material Deform: writing shape key")
     # Everything above only read; from here on only writes that cannot fail on bad input.
+    # The old solver goes first: it keeps the old bind matrices (_bind_matrices), which must
+    # not outlive a write phase that stops half way.
+    _cache.pop(obj.as_pointer(), None)
     method_of(obj).commit(obj, inp)
     for anc, m in zip(s.anchors, bind_m, strict=True):
         anc.bind_matrix = m.ravel().tolist()

@@ -183,7 +183,9 @@ TEST(Transforms, GroupedBlendMatchesReferenceOverWideScaleRange) {
 
 TEST(Transforms, GroupedBlendBeyondTheVectorExpRange) {
   // Log-scales of +-705 (scales of about 1e+-306) take the exp's scalar fallback for some faces
-  // and the vector path for others (blends near 0).
+  // and the vector path for others (blends near 0). The vector path would still be exact here
+  // (2^n reaches 2^1023): GroupedBlendBeyondTheExponentRangeOf2n is the one that needs the
+  // fallback.
   std::vector<TransformLog> logs(2);
   logs[0].log_stretch = 705.0 * Eigen::Matrix3d::Identity();
   logs[1].log_stretch = -705.0 * Eigen::Matrix3d::Identity();
