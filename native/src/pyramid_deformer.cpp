@@ -745,6 +745,13 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
     *e = static_cast<int>(static_cast<int64_t>(nf) * (p + 1) / parts);
   };
   int stored = 0, head = 0, it = 0;
+  // After each sweep: count it, record its move; true once the stopping rule is met.
+  auto finished = [&]() {
+    ++it;
+    if (!std::isfinite(*move)) throw std::runtime_error("pyramid deformer: the iteration diverged");
+    if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
+    return *move < limit;
+  };
   if (window == 0) {
     Vertices Y;
     while (it < max_iterations) {
@@ -752,11 +759,7 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
       sweep(&Y, o);
       *move = max_move(Y, *X, free);
       X->swap(Y);
-      ++it;
-      if (!std::isfinite(*move))
-        throw std::runtime_error("pyramid deformer: the iteration diverged");
-      if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
-      if (*move < limit) break;
+      if (finished()) break;
     }
     return it;
   }
@@ -845,10 +848,7 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
       }
     }
     if (!accelerated) x_now = g_prev;  // the plain step: X holds the sweep's result already
-    ++it;
-    if (!std::isfinite(*move)) throw std::runtime_error("pyramid deformer: the iteration diverged");
-    if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
-    if (*move < limit) break;
+    if (finished()) break;
   }
   return it;
 }
