@@ -160,6 +160,97 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
     throw std::invalid_argument("transform: entries too large (scale overflows)");
 }
 
+bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace) {
+  // Horn's N for the sums S_ab = sum x_a y_b = H(b, a); for a unit quaternion q,
+  // q^T N q = tr(R(q)^T H), so the eigenvector of N's largest eigenvalue gives R.
+  const double sxx = H(0, 0), sxy = H(1, 0), sxz = H(2, 0);
+  const double syx = H(0, 1), syy = H(1, 1), syz = H(2, 1);
+  const double szx = H(0, 2), szy = H(1, 2), szz = H(2, 2);
+  double N[4][4] = {{sxx + syy + szz, syz - szy, szx - sxz, sxy - syx},
+                    {0, sxx - syy - szz, sxy + syx, szx + sxz},
+                    {0, 0, -sxx + syy - szz, syz + szy},
+                    {0, 0, 0, -sxx - syy + szz}};
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < i; ++j) N[i][j] = N[j][i];
+  const double h2 = H.squaredNorm();
+  if (!(h2 > 0) || !std::isfinite(h2)) return false;
+  // det(N - l I) = l^4 + c2 l^2 + c1 l + c0 (tr N = 0): c2 = -tr(N^2)/2, c1 = -tr(N^3)/3.
+  double N2[4][4];
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) {
+      double s = 0;
+      for (int k = 0; k < 4; ++k) s += N[i][k] * N[k][j];
+      N2[i][j] = s;
+    }
+  double p2 = 0, p3 = 0;
+  for (int i = 0; i < 4; ++i) {
+    p2 += N2[i][i];
+    for (int j = 0; j < 4; ++j) p3 += N2[i][j] * N[j][i];
+  }
+  const double c2 = -0.5 * p2, c1 = -p3 / 3.0;
+  const Eigen::Map<const Eigen::Matrix<double, 4, 4, Eigen::RowMajor>> Nm(&N[0][0]);
+  const double c0 = Nm.determinant();
+  // Newton from above: lambda_max <= sigma_1 + sigma_2 + sigma_3 <= sqrt(3) |H|_F, and beyond
+  // the largest root the quartic is increasing and convex, so the iterates fall monotonically.
+  double l = std::sqrt(3.0 * h2);
+  const double l0 = l;
+  for (int it = 0; it < 100; ++it) {
+    const double P = ((l * l + c2) * l + c1) * l + c0;
+    const double dP = (4.0 * l * l + 2.0 * c2) * l + c1;
+    if (!(dP > 0)) break;
+    const double step = P / dP;
+    if (!(step > 1e-15 * l0)) break;
+    l -= step;
+  }
+  // The eigenvector spans the kernel of A = N - l I: the generalised cross product of any three
+  // of its rows (a column of adj A), the largest of the four choices.
+  double A[4][4];
+  auto det3 = [&](int r0, int r1, int r2, int a, int b, int c) {
+    return A[r0][a] * (A[r1][b] * A[r2][c] - A[r1][c] * A[r2][b]) -
+           A[r0][b] * (A[r1][a] * A[r2][c] - A[r1][c] * A[r2][a]) +
+           A[r0][c] * (A[r1][a] * A[r2][b] - A[r1][b] * A[r2][a]);
+  };
+  // |q| is about the product of l's gaps to the other three eigenvalues (the smallest of them is
+  // 2 (sigma_2 + sign sigma_3)). The root carries the quartic's round-off, eps l0 over the
+  // relative gap, and q's error is that over the gap again: where the gap is small, Rayleigh
+  // quotients q^T N q (error eps l0) and new adjugates make it eps over the gap, as an SVD's.
+  auto kernel = [&](double lam, Eigen::Vector4d* out) {
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) A[i][j] = N[i][j] - (i == j ? lam : 0.0);
+    *out = Eigen::Vector4d::Zero();
+    for (int skip = 0; skip < 4; ++skip) {
+      int r[3], n = 0;
+      for (int i = 0; i < 4; ++i)
+        if (i != skip) r[n++] = i;
+      const Eigen::Vector4d v(det3(r[0], r[1], r[2], 1, 2, 3), -det3(r[0], r[1], r[2], 0, 2, 3),
+                              det3(r[0], r[1], r[2], 0, 1, 3), -det3(r[0], r[1], r[2], 0, 1, 2));
+      if (v.squaredNorm() > out->squaredNorm()) *out = v;
+    }
+    return out->norm();
+  };
+  const double cube = l0 * l0 * l0;
+  Eigen::Vector4d best;
+  double qn = kernel(l, &best);
+  // Refine where the relative gap is below ~1e-3, twice below ~1e-5 (the first step leaves an
+  // error of eps^2 / gap^4).
+  for (const double below : {1e-3, 1e-5}) {
+    if (!(qn > 1e-9 * cube) || !std::isfinite(qn)) return false;
+    if (qn > below * cube) break;
+    const Eigen::Vector4d u = best / qn;
+    qn = kernel(u.dot(Nm * u), &best);
+  }
+  if (!(qn > 1e-9 * cube) || !std::isfinite(qn)) return false;
+  const Eigen::Vector4d q = best / qn;
+  const double w = q(0), x = q(1), y = q(2), z = q(3);
+  Eigen::Matrix3d Rq;
+  Rq << w * w + x * x - y * y - z * z, 2 * (x * y - w * z), 2 * (x * z + w * y),
+      2 * (x * y + w * z), w * w - x * x + y * y - z * z, 2 * (y * z - w * x), 2 * (x * z - w * y),
+      2 * (y * z + w * x), w * w - x * x - y * y + z * z;
+  *R = Rq;
+  *trace = (Rq.transpose() * H).trace();
+  return true;
+}
+
 Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (S + S.transpose()));
   const Eigen::Vector3d lam = es.eigenvalues();

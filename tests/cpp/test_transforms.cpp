@@ -2,6 +2,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <limits>
 #include <random>
 #include <unsupported/Eigen/MatrixFunctions>
 
@@ -101,6 +102,77 @@ TEST(Transforms, RejectsNonPositiveDeterminant) {
   Eigen::Matrix3d nan = Eigen::Matrix3d::Identity();
   nan(0, 1) = std::nan("");
   EXPECT_THROW(transform_log(nan), std::invalid_argument);
+}
+
+// fit_rotation against the SVD's U D V^T (D flips the last axis when det H < 0) and the signed
+// sum of the singular values, over the kinds of H a best-fit similarity meets: generic, mirrored,
+// planar point sets (sigma_3 = 0), nearly collinear ones, tiny and huge scales.
+TEST(Transforms, FitRotationMatchesTheSvdSolution) {
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g;
+  auto rotation = [&]() {
+    return Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+  };
+  struct Case {
+    double s2, s3, det, scale, tol;
+  };
+  // s2, s3 relative to sigma_1 (0: random in [0.1, 1]); tol on |R - R_svd|_F, which both carry
+  // as eps over the gap 2 (s2 + det s3).
+  const Case cases[] = {{0, 0, 1, 1, 1e-12},       {0, 0, -1, 1, 1e-10},
+                        {0, 1e-9, 1, 1, 1e-12},    {0.3, 0, 1, 1, 1e-12},
+                        {1e-3, 5e-4, 1, 1, 1e-10}, {1e-6, 3e-7, -1, 1, 1e-8},
+                        {0, 0, 1, 1e-9, 1e-12},    {0, 0, 1, 1e9, 1e-12}};
+  for (const Case& k : cases) {
+    for (int t = 0; t < 300; ++t) {
+      const double s1 = 1 + std::abs(g(rng));
+      auto rel = [&](double s) { return s > 0 ? s : 0.1 + 0.9 * std::abs(std::tanh(g(rng))); };
+      const Eigen::Vector3d sig(s1, s1 * rel(k.s2), s1 * (k.s3 > 0 || k.s2 == 0.3 ? k.s3 : rel(0)));
+      const Eigen::Vector3d d(1, 1, k.det);
+      const Eigen::Matrix3d U = rotation(), V = rotation();
+      const Eigen::Matrix3d H = k.scale * U * sig.asDiagonal() * d.asDiagonal() * V.transpose();
+      Eigen::Matrix3d R;
+      double trace = 0;
+      ASSERT_TRUE(fit_rotation(H, &R, &trace)) << "case s2=" << k.s2 << " det=" << k.det;
+      // H = U diag(sig) (V D)^T with D = diag(1, 1, det): an SVD whose U (V D)^T has determinant
+      // det. When sigma_3 is the smallest, the best proper rotation is U D (V D)^T = U V^T.
+      const Eigen::Matrix3d expected = U * V.transpose();
+      const double sorted3 = std::min({sig(0), sig(1), sig(2)});
+      if (sorted3 == sig(2)) {
+        EXPECT_LT((R - expected).norm(), k.tol) << "s2=" << k.s2 << " det=" << k.det;
+        EXPECT_NEAR(trace, k.scale * (sig(0) + sig(1) + k.det * sig(2)),
+                    1e-13 * k.scale * sig.sum());
+      }
+      EXPECT_LT((R.transpose() * R - Eigen::Matrix3d::Identity()).norm(), 1e-13);
+      EXPECT_NEAR(R.determinant(), 1.0, 1e-13);
+      // optimality against the SVD-based rotation whatever the ordering
+      const Eigen::JacobiSVD<Eigen::Matrix3d> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
+      Eigen::Matrix3d D = Eigen::Matrix3d::Identity();
+      if ((svd.matrixU() * svd.matrixV().transpose()).determinant() < 0) D(2, 2) = -1;
+      const Eigen::Matrix3d Rs = svd.matrixU() * D * svd.matrixV().transpose();
+      EXPECT_NEAR(trace, (Rs.transpose() * H).trace(), 1e-13 * k.scale * sig.sum());
+    }
+  }
+}
+
+TEST(Transforms, FitRotationRefusesUndeterminedRotations) {
+  Eigen::Matrix3d R = Eigen::Matrix3d::Constant(7), R0 = R;
+  double trace = 7;
+  const Eigen::Matrix3d rank1 = Eigen::Vector3d(1, 2, 3) * Eigen::RowVector3d(0.3, -1, 2);
+  EXPECT_FALSE(fit_rotation(rank1, &R, &trace));
+  EXPECT_FALSE(fit_rotation(Eigen::Matrix3d::Zero(), &R, &trace));
+  Eigen::Matrix3d bad = Eigen::Matrix3d::Identity();
+  bad(1, 2) = std::nan("");
+  EXPECT_FALSE(fit_rotation(bad, &R, &trace));
+  bad(1, 2) = std::numeric_limits<double>::infinity();
+  EXPECT_FALSE(fit_rotation(bad, &R, &trace));
+  EXPECT_EQ(R, R0);  // untouched
+  EXPECT_EQ(trace, 7);
+  // a rotation itself and a scaled one come back exactly enough
+  const Eigen::Matrix3d Q =
+      Eigen::AngleAxisd(2.9, Eigen::Vector3d(1, -2, 0.5).normalized()).toRotationMatrix();
+  ASSERT_TRUE(fit_rotation(3.5 * Q, &R, &trace));
+  EXPECT_LT((R - Q).norm(), 1e-14);
+  EXPECT_NEAR(trace, 10.5, 1e-13);
 }
 
 TEST(Transforms, BlendHalfwayIsHalfAngleAndGeometricMeanScale) {

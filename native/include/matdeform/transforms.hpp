@@ -45,6 +45,15 @@ Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega);
 // std::invalid_argument unless det M > 0 and M is finite (and S stays finite).
 void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix3d* R);
 
+// The proper rotation R maximising tr(R^T H) (the rotation of a Kabsch / Umeyama fit with
+// H = sum_i y_i x_i^T, centred point pairs x_i -> y_i), and that trace, which is
+// sigma_1 + sigma_2 + sign(det H) sigma_3. Horn's quaternion form: R is the eigenvector of the
+// largest eigenvalue of a 4x4 symmetric matrix, found by Newton's method on its characteristic
+// polynomial (Theobald's QCP) and the adjugate; no SVD, a few times cheaper than a 3x3 one.
+// Returns false (R, trace untouched) when the rotation is not determined to ~1e-8 (H of rank <= 1
+// or nearly so, or not finite): the caller then decides, e.g. with an SVD.
+bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace);
+
 // Log of a symmetric positive definite matrix and exp of a symmetric one (eigen-decomposition).
 // Both throw std::invalid_argument when an eigenvalue of the log is beyond +-kMaxLogStretch.
 Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S);
