@@ -203,9 +203,9 @@ MUTATIONS = [
     M(
         "P7",
         "native/src/pyramid_deformer.cpp",
-        "return c + ((Rp.transpose() * Hm).trace() / s0) * (Rp * (row(R0, v) - c0));",
+        "return c + (trace / s0) * (Rp * (row(R0, v) - c0));",
         "return c + (Rp * (row(R0, v) - c0));",
-        "followers (polar path) ignore the scale of their neighbourhood",
+        "followers (quaternion-fit path) ignore the scale of their neighbourhood",
     ),
     # Session 10: the blend's weight reads and lane fallbacks, the pyramid's in-place sweeps.
     M(
@@ -235,6 +235,21 @@ MUTATIONS = [
         "if (!accelerated) x_now = g_prev;",
         "",
         "after a plain (unaccelerated) step Anderson measures the move from the stale iterate",
+    ),
+    # Session 11: the quaternion rotation fit the pyramid's followers use.
+    M(
+        "T4",
+        "native/src/transforms.cpp",
+        "{{sxx + syy + szz, syz - szy,",
+        "{{sxx + syy + szz, szy - syz,",
+        "Horn's matrix gets one antisymmetric entry with the wrong sign",
+    ),
+    M(
+        "T5",
+        "native/src/transforms.cpp",
+        "for (const double below : {1e-3, 1e-5}) {",
+        "for (const double below : {1e-300}) {",
+        "the rotation fit never refines a root found near a small eigenvalue gap",
     ),
     M(
         "P4",

@@ -664,18 +664,21 @@ void PyramidSolver::apply(int color, const double* from, double* to, const Pyram
                        pushes.data(),
                        o.stretch};
   void (*kernel)(const PlaceArgs&, int, int) = cpu_has_avx2_fma() ? place_avx2 : place_base;
-  // One range over the groups, then the single vertices: one wait per colour.
+  // One range over the single vertices, then the groups: one wait per colour. The singles
+  // (followers, high valence) cost several groups each, so they are claimed first and the
+  // groups even out the threads' shares (~5 % more sweeps per second with two threads on
+  // cat 5k; the order within a colour does not change the result).
   const int ng = static_cast<int>(groups.size()), ns = static_cast<int>(singles.size());
   parallel_ranges(ng + ns, kMinChunk / 4, chunks(), [&](int b, int e) {
-    if (b < ng) kernel(args, b, std::min(e, ng));
-    for (int r = std::max(b, ng); r < e; ++r) {
-      const int v = singles[static_cast<size_t>(r - ng)];
+    for (int r = b; r < std::min(e, ns); ++r) {
+      const int v = singles[static_cast<size_t>(r)];
       Vec3 p = place(v, from, o.stretch);
       if (o.push && push_row[static_cast<size_t>(v)] >= 0) {
         p += pushes[static_cast<size_t>(push_row[static_cast<size_t>(v)])];
       }
       to[3 * v] = p(0), to[3 * v + 1] = p(1), to[3 * v + 2] = p(2);
     }
+    if (e > ns) kernel(args, std::max(b, ns) - ns, e - ns);
   });
 }
 
