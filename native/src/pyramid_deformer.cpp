@@ -254,9 +254,11 @@ struct PyramidSolver {
   // One sweep over the free vertices (Gauss-Seidel by colours, or Jacobi).
   void sweep(Vertices* X, const PyramidSolveOptions& o) const;
   // Sweeps (Anderson-accelerated) until the largest sweep move < limit or max_iterations.
-  // Returns the sweeps done; *move is the last sweep's largest move (absolute).
+  // Returns the sweeps done; *move is the last sweep's largest move (absolute). Throws
+  // std::runtime_error once a sweep moves a vertex by more than `blowup` (or not finitely).
   int iterate(Vertices* X, const PyramidSolveOptions& o, int max_iterations, double limit,
-              double* move, std::vector<double>* moves, double diag) const;
+              double* move, std::vector<double>* moves, double diag,
+              double blowup = std::numeric_limits<double>::infinity()) const;
 };
 
 PyramidSolver::PyramidSolver(const Vertices& vertices, const Faces& faces,
@@ -698,8 +700,8 @@ void PyramidSolver::sweep(Vertices* X, const PyramidSolveOptions& o) const {
 }
 
 int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_iterations,
-                           double limit, double* move, std::vector<double>* moves,
-                           double diag) const {
+                           double limit, double* move, std::vector<double>* moves, double diag,
+                           double blowup) const {
   const int nf = static_cast<int>(free.size());
   *move = 0;
   if (nf == 0) return 0;
@@ -732,7 +734,12 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
   // After each sweep: count it, record its move; true once the stopping rule is met.
   auto finished = [&]() {
     ++it;
-    if (!std::isfinite(*move)) throw std::runtime_error("pyramid deformer: the iteration diverged");
+    if (!(*move <= blowup)) {  // also NaN and infinity
+      throw std::runtime_error(
+          "pyramid deformer: the iteration diverged (a sweep moved a vertex by more than 100 "
+          "times the size of the mesh and its controls): the pose may be too strong for so few "
+          "control vertices; add controls, or try stretch=False or push=False");
+    }
     if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
     return *move < limit;
   };
@@ -961,9 +968,19 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   last_move_ = std::numeric_limits<double>::quiet_NaN();
   if (options.max_iterations == 0) return X;
 
+  // A sweep that converges moves a vertex by about the extent of the configuration it starts
+  // from at most, so a move of 100x the extent of the start and the controls means the iteration
+  // is running away (growing modes took a capped cylinder of diagonal 4.9 to 1e77 in
+  // 20000 sweeps without overflowing a double, docs/pyramid.md).
+  Eigen::RowVector3d lo = X.colwise().minCoeff(), hi = X.colwise().maxCoeff();
+  if (k > 0) {
+    lo = lo.cwiseMin(control_positions.colwise().minCoeff());
+    hi = hi.cwiseMax(control_positions.colwise().maxCoeff());
+  }
+  const double blowup = 100.0 * (diag_ + (hi - lo).norm());
   double move = 0;
   last_iterations_ = level.iterate(&X, options, options.max_iterations, limit, &move,
-                                   options.record_moves ? &last_moves_ : nullptr, diag_);
+                                   options.record_moves ? &last_moves_ : nullptr, diag_, blowup);
   last_move_ = level.free.empty() ? 0.0 : (diag_ > 0 ? move / diag_ : move);
   return X;
 }

@@ -111,8 +111,10 @@ class PyramidDeformer:
 
         After the call ``last_iterations`` is the number of sweeps and ``last_move`` the largest
         move of the last one, as a fraction of the rest diagonal (NaN after 0 sweeps). The
-        result never contains NaN: should the iteration overflow (not seen with the defaults)
-        it raises RuntimeError instead.
+        result never contains NaN or runaway coordinates: once a sweep moves a vertex by more
+        than 100x the extent of the start and the controls (the iteration is diverging, e.g. a
+        strong pose on a mesh with sliver faces), it raises RuntimeError instead, and
+        ``last_iterations`` is 0, ``last_move`` NaN.
         """
         k = len(self._control)
         x = as_vertices(control_positions, "control_positions", rows=k)

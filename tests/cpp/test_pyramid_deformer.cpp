@@ -217,8 +217,15 @@ TEST(PyramidDeformer, AndersonKernelsConvergeInTheMeasuredSweeps) {
   run(5, true, 20000, &s5);
   EXPECT_LT(d.last_move(), 1e-10);
   EXPECT_GT(s5, 5 * s20);
-  run(0, true, 2000, &s0);
-  EXPECT_GT(d.last_move(), 1e-6);
+  // The plain sweeps run away on this bar (the long-thin-part instability): a clear error
+  // once a sweep moves a vertex by 100x the problem's size, not 1e77 coordinates.
+  try {
+    run(0, true, 20000, &s0);
+    ADD_FAILURE() << "plain sweeps converged or stalled (move " << d.last_move() << ")";
+  } catch (const std::runtime_error& e) {
+    EXPECT_NE(std::string(e.what()).find("diverged"), std::string::npos) << e.what();
+  }
+  EXPECT_TRUE(std::isnan(d.last_move()));           // a failed call reports no move
   const Vertices Y = run(20, false, 20000, &base);  // the baseline build: same steps to round-off
   EXPECT_LE(std::abs(base - s20), 0.1 * s20);
   EXPECT_LT((X - Y).cwiseAbs().maxCoeff(), 1e-8 * diagonal(V));

@@ -454,3 +454,21 @@ def test_plain_sweeps_leave_the_rest_pose_of_a_long_tube_anderson_does_not():
     X = d.deform(v[ctrl], iterations=1000, tol=1e-12, initial=start)
     assert d.last_move < 1e-12
     assert np.abs(X - v).max() < 1e-9 * d.diagonal
+
+
+def test_a_runaway_iteration_raises_instead_of_returning_huge_coordinates():
+    """Blender 4.5's 16-sided cylinder with n-gon caps after Subdivide (10 cuts; its caps
+    triangulate into slivers), the caps as controls, the top one moved 0.8 and turned 0.6 rad
+    (tests/python/data, from the add-on's review): the iteration runs away and reached 1e77 in
+    20000 sweeps on a mesh of diagonal 4.9. RuntimeError once a sweep moves a vertex by 100x the
+    problem's size, and the deformer stays usable."""
+    z = np.load(Path(__file__).parent / "data" / "cylinder_subdivided_ngon_caps.npz")
+    v = z["vertices"].astype(np.float64)
+    ctrl = z["controls"]
+    d = md.PyramidDeformer(v, z["triangles"], ctrl)
+    with pytest.raises(RuntimeError, match="diverged"):
+        d.deform(z["targets"], iterations=20000, tol=1e-6)
+    assert d.last_iterations == 0 and np.isnan(d.last_move)
+    X = d.deform(v[ctrl], tol=1e-9)
+    assert d.last_move < 1e-9
+    np.testing.assert_allclose(X, v, atol=1e-9 * d.diagonal)
