@@ -548,6 +548,22 @@ def output_key(obj, name=OUTPUT_KEY, pointer: int = 0):
     return kb
 
 
+POSE_RECORD = "material_deform_pose"  # custom property of the Key: what the output key holds
+
+
+def key_record(obj) -> str:
+    """The record the session wrote with the output key ("" if none): saved in the .blend and
+    restored by undo together with the key's coordinates."""
+    keys = obj.data.shape_keys
+    return "" if keys is None else str(keys.get(POSE_RECORD, ""))
+
+
+def set_key_record(obj, text: str) -> None:
+    keys = obj.data.shape_keys
+    if keys is not None:
+        keys[POSE_RECORD] = text
+
+
 def is_reference_key(obj, kb) -> bool:
     keys = obj.data.shape_keys
     return keys is not None and kb == keys.reference_key

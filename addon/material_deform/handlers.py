@@ -12,13 +12,13 @@ from . import bake, session, stiffness
 _busy = False  # our own shape-key write triggers another depsgraph update
 
 
-def _run(scene, depsgraph):
+def _run(scene, depsgraph, budget="live"):
     global _busy
     if _busy or scene is None:
         return
     _busy = True
     try:
-        session.live_update(scene, depsgraph)
+        session.live_update(scene, depsgraph, budget)
     finally:
         _busy = False
     if session.unsettled() and not bpy.app.timers.is_registered(_keep_settling):
@@ -69,9 +69,19 @@ def on_depsgraph_update(scene, depsgraph=None):
     _run(scene, None)
 
 
+def _rendering() -> bool:
+    """Frames that nobody watches settle: a background run (``blender -b``, a farm node) has no
+    timers to keep an iterative result settling, and a render job renders what the frame
+    change wrote."""
+    running = getattr(bpy.app, "is_job_running", None)  # Blender 3.3+
+    return bool(bpy.app.background or (running is not None and running("RENDER")))
+
+
 @persistent
 def on_frame_change(scene, depsgraph=None):
-    _run(scene, depsgraph)
+    # While rendering, iterative methods solve each frame to convergence from their own start,
+    # as Bake does (so a rendered frame equals the baked one); playback spends the live budget.
+    _run(scene, depsgraph, None if _rendering() else "live")
 
 
 @persistent

@@ -91,7 +91,10 @@ def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
         if not anc.vertex_group or not bridge.has_vertex_group(obj, anc.vertex_group):
             raise BindError(f"Anchor '{anc.name}': vertex group '{anc.vertex_group}' not found")
         if anc.empty is None:
-            raise BindError(f"Anchor '{anc.name}' has no Empty assigned")
+            raise BindError(
+                f"Anchor '{anc.name}' has no Empty (removed or never assigned): assign one in "
+                "the Anchors list, then Bind"
+            )
         if not bridge.object_in_scene(anc.empty, scene):
             raise BindError(f"Anchor '{anc.name}': Empty '{anc.empty.name}' is not in the scene")
 

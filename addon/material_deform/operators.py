@@ -308,12 +308,24 @@ class MESH_OT_material_deform_select_anchor(_Operator, bpy.types.Operator):
 
 
 class MESH_OT_material_deform_assign_empty(_Operator, bpy.types.Operator):
-    """Assign an existing Empty to the active anchor"""
+    """Assign an existing Empty to the active anchor (from a menu: the selected Empty, or one
+    chosen by name)"""
 
     bl_idname = "mesh.material_deform_assign_empty"
     bl_label = "Assign Empty"
 
     empty: StringProperty(name="Empty")
+
+    def invoke(self, context, event):
+        if not self.empty:
+            picked = [o for o in context.selected_objects if o.type == "EMPTY"]
+            if len(picked) != 1:  # none or several selected: ask for the name
+                return context.window_manager.invoke_props_dialog(self)
+            self.empty = picked[0].name
+        return self.execute(context)
+
+    def draw(self, context):
+        self.layout.prop_search(self, "empty", context.scene, "objects")
 
     def run(self, context, obj):
         s = obj.material_deform
@@ -411,6 +423,9 @@ class OBJECT_OT_material_deform_settle(_ObjectOperator, bpy.types.Operator):
         with _Progress(context) as progress:
             progress(0.1, "Material Deform: settling")
             session.settle(obj, context.scene, context.evaluated_depsgraph_get())
+        status = session.solve_status(obj)
+        if status is not None:  # iterative methods: say whether it converged
+            self.report({"INFO"} if status[0] else {"WARNING"}, f"{obj.name}: {status[1]}")
         return {"FINISHED"}
 
 

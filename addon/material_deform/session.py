@@ -9,6 +9,7 @@ for the anchor transforms; the session never branches on which method it is.
 
 from __future__ import annotations
 
+import hashlib
 from collections.abc import Callable
 
 import numpy as np
@@ -57,6 +58,7 @@ def after_undo(scene, objects) -> None:
     _unsettled.clear()
     for entry in _cache.values():  # every scene's objects: undo restores all of them
         entry.last_key = None  # the output key was restored too: rewrite it on next update
+        entry.state.clear()  # (unless its record says it holds that pose) from what it holds
         entry.extra.pop("bind_matrices", None)  # so were the bind matrices
         entry.key_pointer = 0  # and its block may live elsewhere now
     for obj in scene.objects:
@@ -107,6 +109,7 @@ def resolve_live(obj) -> None:
     entry = _cache.get(obj.as_pointer())
     if entry is not None:
         entry.last_key = None
+        entry.extra.pop("settings_sig", None)
     obj.update_tag()
 
 
@@ -251,13 +254,14 @@ def bind(
     s.output_key_name = kb.name
     bridge.write_key(obj, kb, x)  # at the bind pose: the rest shape exactly
     s.bound = True
+    entry.last_key = _matrix_key(obj, None)
+    bridge.set_key_record(obj, _record(obj, entry, entry.last_key, settled=True))
     s.rebind_reason = ""
     key = obj.as_pointer()
     entry.key_pointer = kb.as_pointer()
     _cache[key] = entry
     _stale.pop(key, None)
     _unsettled.discard(key)
-    entry.last_key = _matrix_key(obj, None)
     progress(1.0, "")
     return entry
 
@@ -410,7 +414,10 @@ def _anchor_empties(obj, scene):
     out = []
     for anc in s.anchors:
         if anc.empty is None or not bridge.object_in_scene(anc.empty, scene):
-            raise BindError(f"Anchor '{anc.name}': its Empty was removed - reassign it and Bind")
+            raise BindError(
+                f"Anchor '{anc.name}' has no Empty (removed or never assigned): assign one in "
+                "the Anchors list, then Bind"
+            )
         out.append(anc)
     return out
 
@@ -540,13 +547,7 @@ def compute(
     if entry is None:
         entry = entry_for(obj, scene)
     key = obj.as_pointer()
-    _check_rest(obj, entry)
-    method = method_of(obj)
-    try:
-        method.check_live(obj, entry, depsgraph)
-    except BindError as exc:
-        mark_stale(obj, str(exc))
-        raise
+    method = _live_checks(obj, entry, depsgraph)
     t = transforms_now(obj, entry, scene, depsgraph, mats)
     if t is None:
         # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
@@ -571,9 +572,72 @@ def compute(
     return out
 
 
+def _live_checks(obj, entry: Entry, depsgraph):
+    """What every solve checks first (the rest shape, the method's live inputs); returns the
+    method."""
+    _check_rest(obj, entry)
+    method = method_of(obj)
+    try:
+        method.check_live(obj, entry, depsgraph)
+    except BindError as exc:
+        mark_stale(obj, str(exc))
+        raise
+    return method
+
+
+def _settings_signature(obj) -> bytes:
+    """The method and the values of its own settings (what a live result depends on beyond
+    the bind and the matrices)."""
+    method = method_of(obj)
+    vals: list = [method.key]
+    group = getattr(settings(obj), method.settings_name) if method.settings_name else None
+    if group is not None:
+        for prop in group.bl_rna.properties:
+            if prop.identifier == "rna_type":
+                continue
+            v = getattr(group, prop.identifier)
+            if hasattr(v, "name"):  # an ID (an Empty)
+                v = v.name
+            elif hasattr(v, "__len__") and not isinstance(v, str):
+                v = tuple(v)
+            vals.append((prop.identifier, v))
+    return repr(vals).encode()
+
+
+def _record(obj, entry: Entry, mkey: bytes, settled: bool) -> str:
+    """What the output key holds: a digest of the pose (the matrices) and the settings, and
+    whether the result had settled. Saved with the key, so after undo or reloading the file
+    the session knows whether the key already holds this pose."""
+    sig = entry.extra.get("settings_sig")
+    if sig is None:
+        sig = entry.extra["settings_sig"] = _settings_signature(obj)
+    digest = hashlib.blake2b(mkey + b"|" + sig, digest_size=16).hexdigest()
+    return f"{digest}:{int(settled)}"
+
+
+def _resume(obj, entry: Entry, kb, mkey: bytes, depsgraph) -> bool:
+    """A fresh cache entry (the file was loaded, or undo restored the key): True if the key
+    holds the settled result of this very pose, which is then kept bit for bit. If it holds
+    an unsettled one, an iterative method continues from it instead of starting over."""
+    held = bridge.key_record(obj)
+    if not held or held.rsplit(":", 1)[0] != _record(obj, entry, mkey, True).rsplit(":", 1)[0]:
+        return False
+    method = _live_checks(obj, entry, depsgraph)
+    if held.endswith(":1"):
+        entry.last_key = mkey
+        _unsettled.discard(obj.as_pointer())
+        return True
+    if method.iterative:
+        flat = np.empty(3 * len(kb.data), np.float32)
+        bridge.read_key_into(kb, flat)
+        pos = flat.reshape(-1, 3).astype(np.float64)
+        method.seed(entry.solver, entry.state, pos if entry.used is None else pos[entry.used])
+    return False
+
+
 def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> bool:
     """Write the deformation into the output shape key if any driver moved (or the last solve
-    had not converged yet). True if written."""
+    had not converged yet). True if written. Never writes a non-finite result (BindError)."""
     entry = entry_for(obj, scene)
     mats = _live_matrices(obj, depsgraph)
     mkey = _matrix_key(obj, depsgraph, mats)
@@ -581,10 +645,36 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> boo
     key = obj.as_pointer()
     if not force and mkey == entry.last_key and key not in _unsettled:
         return False
+    if not force and entry.last_key is None and not entry.state:
+        if _resume(obj, entry, kb, mkey, depsgraph):
+            return False
     x = compute(obj, scene, depsgraph, budget, entry, mats)
+    lo, hi = x.min(initial=0.0), x.max(initial=0.0)
+    if not (-_FLOAT32_MAX < lo and hi < _FLOAT32_MAX):  # also NaN
+        _unsettled.discard(key)
+        raise BindError(
+            f"Cannot pose '{obj.name}': the solver returned coordinates that are not finite "
+            "(the shape key keeps its last result)"
+        )
     bridge.write_key(obj, kb, x)
+    bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
     entry.last_key = mkey
     return True
+
+
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def solve_status(obj) -> tuple[bool, str] | None:
+    """(converged, text) of the last solve of an iterative method (sweeps, last move), None
+    for direct methods or before the first solve."""
+    entry = _cache.get(obj.as_pointer())
+    if entry is None:
+        return None
+    try:
+        return method_of(obj).status(entry.state)
+    except BindError:
+        return None
 
 
 def settle(obj, scene, depsgraph=None) -> None:
@@ -604,9 +694,10 @@ def unsettled() -> bool:
     return bool(_unsettled)
 
 
-def live_update(scene, depsgraph=None) -> None:
+def live_update(scene, depsgraph=None, budget="live") -> None:
     """Handler body: update every bound, live object of the scene. Errors are recorded as
-    stale reasons (shown in the panel), never raised into Blender."""
+    stale reasons (shown in the panel), never raised into Blender. ``budget``: "live" (the
+    methods' per-update budgets) or None (solve to convergence: frames of a render)."""
     for obj in scene.objects:
         if obj.type != "MESH":
             continue
@@ -621,10 +712,12 @@ def live_update(scene, depsgraph=None) -> None:
         if prev != "OBJECT" and full_check(obj, scene):
             continue
         try:
-            apply(obj, scene, depsgraph)
+            apply(obj, scene, depsgraph, budget=budget)
         except Exception as exc:  # a handler must never take Blender down
             _unsettled.discard(key)
             msg = str(exc) if isinstance(exc, BindError) else f"Update failed: {exc}"
             if _stale.get(key) != msg:
                 print(f"Material Deform: '{obj.name}' not updated: {msg}")  # background runs
             _stale[key] = msg
+        else:
+            _stale.pop(key, None)  # e.g. a pose that failed (an Empty scaled to zero) is fixed

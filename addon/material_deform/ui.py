@@ -94,7 +94,7 @@ def draw_status(layout, context, obj) -> None:
         wrapped_label(layout, context, f"{baked}: the bake drives the mesh", icon="REC")
 
 
-def draw_posing(layout, obj, method) -> None:
+def draw_posing(layout, context, obj, method) -> None:
     """Live / Update (/ Settle) and Reset Empties: what posing needs."""
     s = obj.material_deform
     if not s.bound:
@@ -104,6 +104,9 @@ def draw_posing(layout, obj, method) -> None:
     row.operator("object.material_deform_update", icon="FILE_REFRESH")
     if method is not None and method.iterative:
         layout.operator("object.material_deform_settle")
+        status = session.solve_status(obj)
+        if status is not None:  # the last solve's sweeps and move; a warning if it stopped
+            wrapped_label(layout, context, status[1], icon="CHECKMARK" if status[0] else "ERROR")
     layout.operator("object.material_deform_reset_empties", icon="EMPTY_AXIS")
 
 
@@ -136,7 +139,7 @@ class VIEW3D_PT_material_deform(bpy.types.Panel):
             layout.operator("object.material_deform_select_mesh", icon="RESTRICT_SELECT_OFF")
         draw_status(layout, context, obj)
         method = _method(layout, obj) if obj.material_deform.bound else None
-        draw_posing(layout, obj, method)
+        draw_posing(layout, context, obj, method)
 
 
 class _MeshSubpanel:
@@ -289,6 +292,11 @@ class VIEW3D_MT_material_deform(bpy.types.Menu):
         layout.operator("object.material_deform_reset_empties")
         layout.operator("object.material_deform_select_mesh")
         layout.operator("object.material_deform_reset")
+        layout.separator()
+        layout.operator("mesh.material_deform_add_anchor")
+        layout.operator("mesh.material_deform_remove_anchor")
+        layout.operator("mesh.material_deform_select_anchor")
+        layout.operator("mesh.material_deform_assign_empty")
         layout.separator()
         layout.operator("mesh.material_deform_add_paint_layer")
         layout.operator("mesh.material_deform_stiffness_from_paint")

@@ -67,9 +67,12 @@ def add_anchor(obj, pred, mode="POSITION"):
 
 
 def two_end_anchors(obj, half_length=2.0):
-    top = add_anchor(obj, lambda p: p.center.z > half_length - 1e-4)
-    bottom = add_anchor(obj, lambda p: p.center.z < -half_length + 1e-4)
-    return top, bottom
+    add_anchor(obj, lambda p: p.center.z > half_length - 1e-4)
+    add_anchor(obj, lambda p: p.center.z < -half_length + 1e-4)
+    # fetched after both adds: adding to a collection may move its items, and a Python
+    # reference to an item taken before would point at freed memory
+    anchors = obj.material_deform.anchors
+    return anchors[-2], anchors[-1]
 
 
 def co(seq):

@@ -156,6 +156,14 @@ def test_menus_hold_the_operators_so_f3_finds_them():
         assert f"mesh.material_deform_{op}" in log
     for menu in ("VIEW3D_MT_edit_mesh_context_menu", "VIEW3D_MT_edit_mesh_faces"):
         assert "mesh.material_deform_add_anchor" in _menu_log(getattr(bpy.types, menu))
+    # every operator a user can call is in one of the menus (the old aliases are INTERNAL)
+    from material_deform import operators
+
+    everywhere = " ".join(map(str, log))
+    for menu in ("VIEW3D_MT_edit_mesh_context_menu", "VIEW3D_MT_edit_mesh_faces"):
+        everywhere += " ".join(map(str, _menu_log(getattr(bpy.types, menu))))
+    public = [c.bl_idname for c in operators.classes if "INTERNAL" not in c.bl_options]
+    assert [op for op in public if op not in everywhere] == []
 
 
 def test_object_actions_have_object_ids_and_the_old_ids_still_work():

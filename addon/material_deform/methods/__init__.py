@@ -91,6 +91,17 @@ class Method:
         """Iterations per live update (iterative methods), None to converge every update."""
         return None
 
+    def status(self, state: dict) -> tuple[bool, str] | None:
+        """(converged, text) about the last solve of an iterative method, e.g. the sweeps it
+        took and its last move; Settle reports it and the panel shows it. None: nothing to say
+        (direct methods)."""
+        return None
+
+    def seed(self, solver, state: dict, positions: np.ndarray) -> None:
+        """An iterative method's warm start from positions (n_c,3) the output key already
+        holds (after undo or reloading the file, when ``state`` is empty): the next live
+        update continues from them instead of starting over."""
+
 
 _methods: dict[str, Method] = {}
 

@@ -407,13 +407,24 @@ class EdgeMethod(Method):
         key = t.tobytes() + repr(sorted((k, np.asarray(v).tolist()) for k, v in p.items())).encode()
         spent = (state.get("spent", 0) if state.get("pose_key") == key else 0) + d.last_iterations
         state["pose_key"], state["spent"] = key, spent
-        done = (
-            budget is None
-            or d.last_move < p["tol"]
-            or p["tol"] == 0.0
-            or spent >= p["settle_iterations"]
-        )
+        converged = d.last_move < p["tol"] or p["tol"] == 0.0
+        state.update(move=d.last_move, converged=converged)
+        done = budget is None or converged or spent >= p["settle_iterations"]
         return Result(x, done)
+
+    def status(self, state) -> tuple[bool, str] | None:
+        if "converged" not in state:
+            return None
+        n, move = state["spent"], state["move"]
+        if state["converged"]:
+            return True, f"Converged: {n} iterations, last move {move:.1e} of the diagonal"
+        return False, (
+            f"Not converged after {n} iterations (last move {move:.1e} of the diagonal): "
+            "raise Settle Max, or see the Edge docs on two-cycles"
+        )
+
+    def seed(self, solver, state, positions) -> None:
+        state["x"] = np.array(positions, dtype=np.float64)
 
     def check_live(self, obj, entry, depsgraph) -> None:
         """Reads the live settings for the next solve (they are not part of the bind), and

@@ -140,27 +140,45 @@ class PyramidMethod(Method):
         # before any live update: the defaults then)
         tol, stretch, most = state.get("settings", (1e-6, True, 20000))
         targets = self.targets(solver, transforms)
-        if not np.array_equal(targets, state.get("targets")):
-            state["spent"] = 0  # a new pose: a new allowance of sweeps
+        pose = (targets.tobytes(), tol, stretch, most)
+        if state.get("pose") != pose:
+            state["spent"] = 0  # a new pose or new settings: a new allowance of sweeps
         spent = state.get("spent", 0)
-        it = max(most - spent, 1) if budget is None else min(budget, max(most - spent, 1))
-        # Live updates warm-start from the last result. Settle and Bake start from the solver's
-        # own start (the controls' best-fit similarity of the rest mesh): the iteration has
-        # several fixed points, and warm starts from another frame reached a poorer one (edges
-        # 0.36-1.49x rest instead of 0.92-1.10x, docs/pyramid.md). So a baked frame depends on
-        # its pose only (a farm can bake frames in any order) and Settle equals the library.
-        x0 = None if budget is None else state.get("x")
+        # Live updates warm-start from the last result and share Max Sweeps per pose. Settle
+        # and Bake start from the solver's own start (the controls' best-fit similarity of the
+        # rest mesh) with the whole allowance: the iteration has several fixed points, and warm
+        # starts from another frame reached a poorer one (edges 0.36-1.49x rest instead of
+        # 0.92-1.10x, docs/pyramid.md). So a baked frame depends on its pose only (a farm can
+        # bake frames in any order) and Settle equals the library.
+        if budget is None:
+            it, x0 = most, None
+        else:
+            it, x0 = min(budget, max(most - spent, 1)), state.get("x")
         d = solver.deformer
         try:
             x = d.deform(targets, iterations=it, tol=tol, initial=x0, stretch=stretch)
-        except RuntimeError as exc:  # overflow: keep the last good result
+        except RuntimeError as exc:  # diverged: keep the last good result
             raise ValueError(f"pyramid iteration failed ({exc})") from None
-        state.update(x=x, targets=targets, iterations=d.last_iterations, move=d.last_move)
-        state["spent"] = spent + d.last_iterations
+        spent = d.last_iterations if budget is None else spent + d.last_iterations
         converged = bool(d.last_move < tol) or d.last_iterations < it
-        state["converged"] = converged
+        state.update(x=x, pose=pose, spent=spent, move=d.last_move, converged=converged)
+        state["iterations"] = d.last_iterations
         # out of sweeps for this pose: final (not converged) rather than updating forever
-        return Result(x, done=converged or state["spent"] >= most)
+        return Result(x, done=converged or spent >= most)
+
+    def status(self, state) -> tuple[bool, str] | None:
+        if "converged" not in state:
+            return None
+        n, move = state["spent"], state["move"]
+        if state["converged"]:
+            return True, f"Converged: {n} sweeps, last move {move:.1e} of the diagonal"
+        return False, (
+            f"Not converged after {n} sweeps (last move {move:.1e} of the diagonal): raise "
+            "Max Sweeps, or try Stretch Correction off"
+        )
+
+    def seed(self, solver, state, positions) -> None:
+        state["x"] = np.array(positions, dtype=np.float64)
 
     def live_budget(self, obj) -> int | None:
         return int(settings(obj).pyramid.live_iterations)
