@@ -252,6 +252,13 @@ MUTATIONS = [
         "the rotation fit never refines a root found near a small eigenvalue gap",
     ),
     M(
+        "T6",
+        "native/src/transforms.cpp",
+        "constexpr double kRefuse = 1e-6;",
+        "constexpr double kRefuse = 1e-9;",
+        "the rotation fit accepts eigenvalue gaps too small for its Newton root",
+    ),
+    M(
         "P4",
         "native/src/pyramid_deformer.cpp",
         "weight[i] = w / length[i];",

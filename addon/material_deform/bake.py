@@ -20,17 +20,20 @@ def state(obj) -> str:
 
 
 def _solved_frames(obj, scene, frames, progress):
-    """(frame, positions (n,3)) for every frame, each solved to convergence; iterative methods
-    warm-start from the previous frame. The scene's frame is restored afterwards."""
+    """(frame, positions (n,3)) for every frame, each solved to convergence (the method picks
+    its start: Edge continues from the previous frame, Pyramid starts every frame cold). Never
+    a non-finite frame (BindError). The scene's frame is restored afterwards."""
     progress = progress or (lambda _f, _t: None)
-    session.entry_for(obj, scene)
+    entry = session.entry_for(obj, scene)
     old = scene.frame_current
     try:
         for i, f in enumerate(frames):
             progress(i / len(frames), f"Material Deform: baking frame {f} ({i + 1}/{len(frames)})")
             bridge.frame_set(scene, f)
             dg = bridge.evaluated_depsgraph_from_scene(scene)
-            yield f, session.compute(obj, scene, dg, budget=None)
+            x = session.compute(obj, scene, dg, budget=None)
+            session.check_finite(obj, entry, x)
+            yield f, x
     finally:
         bridge.frame_set(scene, old)
 

@@ -314,7 +314,8 @@ class MESH_OT_material_deform_assign_empty(_Operator, bpy.types.Operator):
     bl_idname = "mesh.material_deform_assign_empty"
     bl_label = "Assign Empty"
 
-    empty: StringProperty(name="Empty")
+    # SKIP_SAVE: from the menu, the last run's Empty must not be reused silently
+    empty: StringProperty(name="Empty", options={"SKIP_SAVE"})
 
     def invoke(self, context, event):
         if not self.empty:

@@ -57,8 +57,11 @@ def after_undo(scene, objects) -> None:
     _stale.clear()
     _unsettled.clear()
     for entry in _cache.values():  # every scene's objects: undo restores all of them
-        entry.last_key = None  # the output key was restored too: rewrite it on next update
-        entry.state.clear()  # (unless its record says it holds that pose) from what it holds
+        # the output key and its record were restored too: the next update keeps the key if
+        # the record says it holds that pose settled, else solves from what the key holds
+        entry.last_key = None
+        entry.state.clear()
+        entry.extra.pop("settings_sig", None)  # and the settings may be other ones
         entry.extra.pop("bind_matrices", None)  # so were the bind matrices
         entry.key_pointer = 0  # and its block may live elsewhere now
     for obj in scene.objects:
@@ -255,7 +258,11 @@ def bind(
     bridge.write_key(obj, kb, x)  # at the bind pose: the rest shape exactly
     s.bound = True
     entry.last_key = _matrix_key(obj, None)
-    bridge.set_key_record(obj, _record(obj, entry, entry.last_key, settled=True))
+    # Bind solves a kept pose without the live settings (they reach an iterative method only
+    # through the live checks): its result counts as settled only at the bind pose itself
+    at_rest = x is entry.rest or np.array_equal(x, entry.rest)
+    settled = at_rest or not method_of(obj).iterative
+    bridge.set_key_record(obj, _record(obj, entry, entry.last_key, settled=settled))
     s.rebind_reason = ""
     key = obj.as_pointer()
     entry.key_pointer = kb.as_pointer()
@@ -615,7 +622,7 @@ def _record(obj, entry: Entry, mkey: bytes, settled: bool) -> str:
     return f"{digest}:{int(settled)}"
 
 
-def _resume(obj, entry: Entry, kb, mkey: bytes, depsgraph) -> bool:
+def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
     """A fresh cache entry (the file was loaded, or undo restored the key): True if the key
     holds the settled result of this very pose, which is then kept bit for bit. If it holds
     an unsettled one, an iterative method continues from it instead of starting over."""
@@ -623,6 +630,7 @@ def _resume(obj, entry: Entry, kb, mkey: bytes, depsgraph) -> bool:
     if not held or held.rsplit(":", 1)[0] != _record(obj, entry, mkey, True).rsplit(":", 1)[0]:
         return False
     method = _live_checks(obj, entry, depsgraph)
+    transforms_now(obj, entry, scene, depsgraph, mats)  # what a solve would refuse: raises
     if held.endswith(":1"):
         entry.last_key = mkey
         _unsettled.discard(obj.as_pointer())
@@ -645,21 +653,13 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> boo
     key = obj.as_pointer()
     if not force and mkey == entry.last_key and key not in _unsettled:
         return False
-    if not force and entry.last_key is None and not entry.state:
-        if _resume(obj, entry, kb, mkey, depsgraph):
+    if force:
+        entry.extra.pop("settings_sig", None)  # Update, Settle, a setting's callback
+    elif entry.last_key is None and not entry.state:
+        if _resume(obj, entry, scene, kb, mkey, depsgraph, mats):
             return False
     x = compute(obj, scene, depsgraph, budget, entry, mats)
-    flat = np.ascontiguousarray(x).reshape(-1)
-    # one dot product (~2 us at 10k faces): below float32's max squared, every coordinate is
-    # finite and fits the key's float32; NaN and inf fail the test too
-    with np.errstate(over="ignore", invalid="ignore"):  # the garbage is reported below
-        ss = float(flat @ flat)
-    if not (ss < _FLOAT32_MAX_SQ):
-        _unsettled.discard(key)
-        raise BindError(
-            f"Cannot pose '{obj.name}': the solver returned coordinates that are not finite "
-            "(the shape key keeps its last result)"
-        )
+    check_finite(obj, entry, x)
     bridge.write_key(obj, kb, x)
     bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
     entry.last_key = mkey
@@ -667,6 +667,24 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> boo
 
 
 _FLOAT32_MAX_SQ = float(np.finfo(np.float32).max) ** 2
+
+
+def check_finite(obj, entry: Entry, x: np.ndarray) -> None:
+    """BindError unless every coordinate of x is finite and fits a float32 (what keys and
+    point caches store). The method's state is dropped then: an iterative method must not
+    continue from that iterate."""
+    flat = np.ascontiguousarray(x).reshape(-1)
+    # one dot product (~2 us at 10k faces): below float32's max squared, every coordinate is
+    # finite and fits; NaN and inf fail the test too
+    with np.errstate(over="ignore", invalid="ignore"):  # the garbage is reported below
+        ss = float(flat @ flat)
+    if not (ss < _FLOAT32_MAX_SQ):
+        entry.state.clear()
+        _unsettled.discard(obj.as_pointer())
+        raise BindError(
+            f"Cannot pose '{obj.name}': the solver returned coordinates that are not finite "
+            "(the shape key keeps its last result)"
+        )
 
 
 def solve_status(obj) -> tuple[bool, str] | None:
@@ -701,7 +719,8 @@ def unsettled() -> bool:
 def live_update(scene, depsgraph=None, budget="live") -> None:
     """Handler body: update every bound, live object of the scene. Errors are recorded as
     stale reasons (shown in the panel), never raised into Blender. ``budget``: "live" (the
-    methods' per-update budgets) or None (solve to convergence: frames of a render)."""
+    methods' per-update budgets) or None: frames of a render, each solved to convergence as
+    Bake solves it, even where the key already holds a (live) result of that pose."""
     for obj in scene.objects:
         if obj.type != "MESH":
             continue
@@ -716,7 +735,7 @@ def live_update(scene, depsgraph=None, budget="live") -> None:
         if prev != "OBJECT" and full_check(obj, scene):
             continue
         try:
-            apply(obj, scene, depsgraph, budget=budget)
+            wrote = apply(obj, scene, depsgraph, force=budget is None, budget=budget)
         except Exception as exc:  # a handler must never take Blender down
             _unsettled.discard(key)
             msg = str(exc) if isinstance(exc, BindError) else f"Update failed: {exc}"
@@ -724,4 +743,5 @@ def live_update(scene, depsgraph=None, budget="live") -> None:
                 print(f"Material Deform: '{obj.name}' not updated: {msg}")  # background runs
             _stale[key] = msg
         else:
-            _stale.pop(key, None)  # e.g. a pose that failed (an Empty scaled to zero) is fixed
+            if wrote:  # e.g. a pose that failed (an Empty scaled to zero) is fixed now
+                _stale.pop(key, None)

@@ -229,17 +229,21 @@ bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace) {
     return out->norm();
   };
   const double cube = l0 * l0 * l0;
+  // Newton resolves the top root only to ~sqrt(eps) l0 where the gap is tiny, and then the
+  // Rayleigh steps can converge to the second eigenvector (a rotation turned by pi; a review
+  // found it at relative gaps of 1e-8 and below): refuse below ~1e-6, the SVD takes those.
+  constexpr double kRefuse = 1e-6;
   Eigen::Vector4d best;
   double qn = kernel(l, &best);
   // Refine where the relative gap is below ~1e-3, twice below ~1e-5 (the first step leaves an
   // error of eps^2 / gap^4).
   for (const double below : {1e-3, 1e-5}) {
-    if (!(qn > 1e-9 * cube) || !std::isfinite(qn)) return false;
+    if (!(qn > kRefuse * cube) || !std::isfinite(qn)) return false;
     if (qn > below * cube) break;
     const Eigen::Vector4d u = best / qn;
     qn = kernel(u.dot(Nm * u), &best);
   }
-  if (!(qn > 1e-9 * cube) || !std::isfinite(qn)) return false;
+  if (!(qn > kRefuse * cube) || !std::isfinite(qn)) return false;
   const Eigen::Vector4d q = best / qn;
   const double w = q(0), x = q(1), y = q(2), z = q(3);
   Eigen::Matrix3d Rq;

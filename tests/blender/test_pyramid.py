@@ -506,8 +506,7 @@ def test_a_non_finite_result_is_never_written(monkeypatch):
     assert np.isfinite(output(obj)).all() and session.stale_reason(obj) == ""
 
 
-def test_a_diverging_pose_is_reported_and_the_key_keeps_its_last_result():
-    """The library's runaway check reaches the user as an error; nothing is written."""
+def cylinder_with_cap_anchors():
     z = np.load(Path(__file__).parents[1] / "python" / "data" / "cylinder_subdivided_ngon_caps.npz")
     v, tris = z["vertices"], z["triangles"]
     mesh = bpy.data.meshes.new("Cyl")
@@ -517,8 +516,32 @@ def test_a_diverging_pose_is_reported_and_the_key_keeps_its_last_result():
     obj.material_deform.method = "PYRAMID"
     bpy.context.view_layer.objects.active = obj
     two_end_anchors(obj, half_length=2.0)
-    top = obj.material_deform.anchors[0]
     assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    return obj, obj.material_deform.anchors[0]
+
+
+def test_a_live_chain_that_runs_away_stops_with_an_error():
+    """Review: the library's runaway test is relative to the start, and the live updates start
+    from the last result, so chained live updates grew the key to 1e18-1e35 unnoticed."""
+    obj, top = cylinder_with_cap_anchors()
+    r = rest(obj)
+    size = float(np.linalg.norm(r.max(0) - r.min(0)))
+    top.empty.location.x += 0.8
+    top.empty.rotation_euler.y += 0.6
+    update()
+    for _ in range(300):
+        if not session.unsettled():
+            break
+        handlers._keep_settling()
+    assert not session.unsettled()
+    assert "diverged" in session.stale_reason(obj)
+    x = output(obj)
+    assert np.isfinite(x).all() and np.linalg.norm(x.max(0) - x.min(0)) < 12 * size
+
+
+def test_a_diverging_pose_is_reported_and_the_key_keeps_its_last_result():
+    """The library's runaway check reaches the user as an error; nothing is written."""
+    obj, top = cylinder_with_cap_anchors()
     obj.material_deform.live = False
     before = output(obj).copy()
     top.empty.location.x += 0.8
@@ -526,3 +549,48 @@ def test_a_diverging_pose_is_reported_and_the_key_keeps_its_last_result():
     update()
     expect_error(bpy.ops.object.material_deform_settle, "diverged")
     assert output(obj).tobytes() == before.tobytes()
+
+
+def test_a_rendered_frame_is_the_cold_start_even_after_a_live_settle():
+    """Review: a frame change while rendering kept a key that held a live (warm-started)
+    result of the same pose, which can be another fixed point than Bake's cold start."""
+    obj, top, bottom = pyramid_bar()
+    obj.material_deform.pyramid.tolerance = 1e-9
+    top.empty.location.x += 1.0
+    top.empty.rotation_euler.y = 0.5
+    for step in range(5):  # a drag: the live chain warm-starts from each previous result
+        top.empty.location.y = 0.05 * step
+        update()
+    settle_live()
+    bpy.context.scene.frame_set(bpy.context.scene.frame_current)  # background: renders
+    want, _ = library_result(obj, (top, bottom), tol=1e-9)
+    np.testing.assert_allclose(output(obj), want, atol=1e-6 * diagonal(want))
+
+
+def test_assign_empty_from_the_menu_takes_the_selected_empty_not_the_last_one():
+    """Review: without SKIP_SAVE a menu call reused the previous run's Empty. Headless Blender
+    has no events, so the operator's invoke is called directly here."""
+    from material_deform import operators
+
+    obj, top, _ = pyramid_bar()
+    for name in ("E1", "E2"):
+        bpy.context.scene.collection.objects.link(bpy.data.objects.new(name, None))
+    op = bpy.ops.mesh.material_deform_assign_empty
+    assert op(empty="E1") == {"FINISHED"}
+    s = obj.material_deform
+    assert s.anchors[s.active_anchor_index].empty.name == "E1"
+    cls = operators.MESH_OT_material_deform_assign_empty
+    assert op.get_rna_type().properties["empty"].is_skip_save
+    for o in bpy.context.scene.objects:
+        o.select_set(o.name in ("E2", "Bar"))
+    bpy.context.view_layer.objects.active = obj
+    calls = []
+
+    class Fake:
+        empty = ""
+
+        def execute(self, context):
+            calls.append(self.empty)
+            return {"FINISHED"}
+
+    assert cls.invoke(Fake(), bpy.context, None) == {"FINISHED"} and calls == ["E2"]

@@ -105,6 +105,17 @@ def control_vertices(inputs) -> tuple[np.ndarray, np.ndarray]:
     return inputs.compact_index(idx[order]), np.asarray(owner, np.int64)[order]
 
 
+def _extent(p: np.ndarray) -> float:
+    """Bounding-box diagonal of points (m,3)."""
+    return float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) if len(p) else 0.0
+
+
+def _stretch_of(solver: Solver, targets: np.ndarray) -> float:
+    """How much the controls spread relative to rest (>= 1)."""
+    r = _extent(solver.rest)
+    return max(1.0, _extent(targets) / r) if r > 0 else 1.0
+
+
 class PyramidMethod(Method):
     key = "PYRAMID"
     number = 3
@@ -157,7 +168,18 @@ class PyramidMethod(Method):
         d = solver.deformer
         try:
             x = d.deform(targets, iterations=it, tol=tol, initial=x0, stretch=stretch)
-        except RuntimeError as exc:  # diverged: keep the last good result
+            # The library's runaway test is relative to the start, and a live chain starts
+            # from the last result: so also bound the result by the pose itself. A result
+            # spans about the rest diagonal times the controls' spread relative to rest; 3x
+            # that plus the controls' own extent is a runaway (the review's cylinder chain
+            # went 8x, 17x, 21x ... the rest size in 30-sweep steps, then 1e18)
+            if _extent(x) > 3.0 * (
+                solver.diagonal * _stretch_of(solver, targets) + _extent(targets)
+            ):
+                raise RuntimeError("the iteration diverged (the mesh grew 3x beyond its pose)")
+        except RuntimeError as exc:  # diverged: keep the last good result, start over next time
+            for k in ("x", "pose", "spent", "converged"):
+                state.pop(k, None)
             raise ValueError(f"pyramid iteration failed ({exc})") from None
         spent = d.last_iterations if budget is None else spent + d.last_iterations
         converged = bool(d.last_move < tol) or d.last_iterations < it

@@ -50,8 +50,9 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
 // sigma_1 + sigma_2 + sign(det H) sigma_3. Horn's quaternion form: R is the eigenvector of the
 // largest eigenvalue of a 4x4 symmetric matrix, found by Newton's method on its characteristic
 // polynomial (Theobald's QCP) and the adjugate; no SVD, a few times cheaper than a 3x3 one.
-// Returns false (R, trace untouched) when the rotation is not determined to ~1e-8 (H of rank <= 1
-// or nearly so, or not finite): the caller then decides, e.g. with an SVD.
+// Returns false (R, trace untouched) when the eigenvalue gap 2 (sigma_2 + sign sigma_3) is below
+// ~1e-6 of sigma_1 (H of rank <= 1 or nearly so) or H is not finite: the caller then decides,
+// e.g. with an SVD. Accepted fits agree with the SVD's to ~eps over that relative gap.
 bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace);
 
 // Log of a symmetric positive definite matrix and exp of a symmetric one (eigen-decomposition).
