@@ -623,23 +623,25 @@ def _record(obj, entry: Entry, mkey: bytes, settled: bool) -> str:
 
 
 def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
-    """A fresh cache entry (the file was loaded, or undo restored the key): True if the key
-    holds the settled result of this very pose, which is then kept bit for bit. If it holds
-    an unsettled one, an iterative method continues from it instead of starting over."""
+    """A fresh cache entry of an iterative method (the file was loaded, or undo restored the
+    key): True if the key holds the settled result of this very pose, which is then kept bit
+    for bit (solving again could reach another fixed point). If it holds an unsettled one, the
+    method continues from it instead of starting over. Direct methods just solve again."""
     held = bridge.key_record(obj)
     if not held or held.rsplit(":", 1)[0] != _record(obj, entry, mkey, True).rsplit(":", 1)[0]:
         return False
     method = _live_checks(obj, entry, depsgraph)
+    if not method.iterative:
+        return False  # a direct solve gives the same bits again (and refills the method state)
     transforms_now(obj, entry, scene, depsgraph, mats)  # what a solve would refuse: raises
     if held.endswith(":1"):
         entry.last_key = mkey
         _unsettled.discard(obj.as_pointer())
         return True
-    if method.iterative:
-        flat = np.empty(3 * len(kb.data), np.float32)
-        bridge.read_key_into(kb, flat)
-        pos = flat.reshape(-1, 3).astype(np.float64)
-        method.seed(entry.solver, entry.state, pos if entry.used is None else pos[entry.used])
+    flat = np.empty(3 * len(kb.data), np.float32)
+    bridge.read_key_into(kb, flat)
+    pos = flat.reshape(-1, 3).astype(np.float64)
+    method.seed(entry.solver, entry.state, pos if entry.used is None else pos[entry.used])
     return False
 
 
