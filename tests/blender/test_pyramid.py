@@ -310,7 +310,8 @@ def test_undo_bind_unbinds():
     assert obj.material_deform.bound
 
 
-def test_bake_converges_each_frame():
+def animated_pyramid_bar():
+    """The bar with its top Empty moved 1.0 and turned 0.5 rad from frame 1 to frame 3."""
     obj, top, bottom = pyramid_bar()
     obj.material_deform.pyramid.tolerance = 1e-9
     e = top.empty
@@ -319,6 +320,11 @@ def test_bake_converges_each_frame():
     e.rotation_euler.y = 0.5
     e.keyframe_insert("location", frame=3)
     e.keyframe_insert("rotation_euler", frame=3)
+    return obj, top, bottom
+
+
+def test_bake_converges_each_frame():
+    obj, top, bottom = animated_pyramid_bar()
     s = obj.material_deform
     s.bake_start, s.bake_end, s.bake_output = 1, 3, "SHAPE_KEYS"
     assert bpy.ops.object.material_deform_bake() == {"FINISHED"}
@@ -465,14 +471,7 @@ def test_frames_of_a_background_run_converge_like_the_bake():
     """Review: frame changes spent one live budget (background runs have no timers to keep
     settling), so a rendered frame differed from the baked one by up to 8 % of the diagonal."""
     assert bpy.app.background
-    obj, top, bottom = pyramid_bar()
-    obj.material_deform.pyramid.tolerance = 1e-9
-    e = top.empty
-    e.keyframe_insert("location", frame=1)
-    e.location.x += 1.0
-    e.rotation_euler.y = 0.5
-    e.keyframe_insert("location", frame=3)
-    e.keyframe_insert("rotation_euler", frame=3)
+    obj, top, bottom = animated_pyramid_bar()
     bpy.context.scene.frame_set(3)
     want, _ = library_result(obj, (top, bottom), tol=1e-9)
     np.testing.assert_allclose(output(obj), want, atol=1e-6 * diagonal(want))

@@ -103,6 +103,17 @@ class Method:
         update continues from them instead of starting over."""
 
 
+def convergence_status(state: dict, steps: str, hint: str) -> tuple[bool, str] | None:
+    """:meth:`Method.status` of an iterative method whose state holds "spent" (steps of the
+    pose), "move" (last move, fraction of the diagonal) and "converged"."""
+    if "converged" not in state:
+        return None
+    n, move = state["spent"], state["move"]
+    if state["converged"]:
+        return True, f"Converged: {n} {steps}, last move {move:.1e} of the diagonal"
+    return False, f"Not converged after {n} {steps} (last move {move:.1e} of the diagonal): {hint}"
+
+
 _methods: dict[str, Method] = {}
 
 

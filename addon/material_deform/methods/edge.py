@@ -31,7 +31,7 @@ from bpy.props import (
 
 from .. import bridge
 from ..model import BindError, load_core, settings
-from . import Method, Result, register_method
+from . import Method, Result, convergence_status, register_method
 
 DIRECTION_ATTR = "md_direction"  # default vector point attribute of the direction field
 _AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -413,14 +413,8 @@ class EdgeMethod(Method):
         return Result(x, done)
 
     def status(self, state) -> tuple[bool, str] | None:
-        if "converged" not in state:
-            return None
-        n, move = state["spent"], state["move"]
-        if state["converged"]:
-            return True, f"Converged: {n} iterations, last move {move:.1e} of the diagonal"
-        return False, (
-            f"Not converged after {n} iterations (last move {move:.1e} of the diagonal): "
-            "raise Settle Max, or see the Edge docs on two-cycles"
+        return convergence_status(
+            state, "iterations", "raise Settle Max, or see the Edge docs on two-cycles"
         )
 
     def seed(self, solver, state, positions) -> None:

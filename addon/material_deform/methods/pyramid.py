@@ -19,7 +19,7 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty
 
 from .. import anchor_math as am
 from ..model import BindError, load_core, settings
-from . import Method, Result, register_method
+from . import Method, Result, convergence_status, register_method
 
 
 def _live_changed(self, context):
@@ -189,14 +189,8 @@ class PyramidMethod(Method):
         return Result(x, done=converged or spent >= most)
 
     def status(self, state) -> tuple[bool, str] | None:
-        if "converged" not in state:
-            return None
-        n, move = state["spent"], state["move"]
-        if state["converged"]:
-            return True, f"Converged: {n} sweeps, last move {move:.1e} of the diagonal"
-        return False, (
-            f"Not converged after {n} sweeps (last move {move:.1e} of the diagonal): raise "
-            "Max Sweeps, or try Stretch Correction off"
+        return convergence_status(
+            state, "sweeps", "raise Max Sweeps, or try Stretch Correction off"
         )
 
     def seed(self, solver, state, positions) -> None:
