@@ -627,12 +627,12 @@ def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
     key): True if the key holds the settled result of this very pose, which is then kept bit
     for bit (solving again could reach another fixed point). If it holds an unsettled one, the
     method continues from it instead of starting over. Direct methods just solve again."""
+    if not method_of(obj).iterative:
+        return False  # a direct solve gives the same bits again (and refills the method state)
     held = bridge.key_record(obj)
     if not held or held.rsplit(":", 1)[0] != _record(obj, entry, mkey, True).rsplit(":", 1)[0]:
         return False
     method = _live_checks(obj, entry, depsgraph)
-    if not method.iterative:
-        return False  # a direct solve gives the same bits again (and refills the method state)
     transforms_now(obj, entry, scene, depsgraph, mats)  # what a solve would refuse: raises
     if held.endswith(":1"):
         entry.last_key = mkey
