@@ -182,8 +182,8 @@ MUTATIONS = [
     M(
         "P3",
         "native/src/simd.cpp",
-        "MD_LD4(out + i) - gj * MD_LD4(col + i);",
-        "MD_LD4(out + i) + gj * MD_LD4(col + i);",
+        "o0 = o0 - gj * MD_LD4(col), o1 = o1 - gj * MD_LD4(col + 4);",
+        "o0 = o0 + gj * MD_LD4(col), o1 = o1 + gj * MD_LD4(col + 4);",
         "Anderson acceleration steps the wrong way",
     ),
     M(
@@ -199,6 +199,13 @@ MUTATIONS = [
         "for (; i < n; ++i) rb += a[i] * b[i], rc += a[i] * c[i];",
         "for (; i < n; ++i) rb += a[i] * b[i];",
         "Anderson's dF^T f drops the entries after the last full block of 8",
+    ),
+    M(
+        "P9",
+        "native/src/simd.cpp",
+        "re += d[i] * b[i], rf += d[i] * c[i];",
+        "re += d[i] * b[i];",
+        "the second column of a pair in Anderson's dF^T f drops its tail entries",
     ),
     M(
         "P7",

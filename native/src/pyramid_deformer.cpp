@@ -797,9 +797,7 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
       double* out = part.data() + static_cast<size_t>(p) * 2 * window;
       const Eigen::Index ib = 3 * static_cast<Eigen::Index>(b),
                          n3 = 3 * static_cast<Eigen::Index>(e - b);
-      for (int j = 0; j < n_cols; ++j) {
-        dot2(dF.data() + j * len + ib, dfh + ib, fp + ib, n3, &out[j], &out[window + j]);
-      }
+      dot2_columns(dF.data() + ib, len, n_cols, dfh + ib, fp + ib, n3, out, out + window);
     });
     *move = std::sqrt(*std::max_element(part_move.begin(), part_move.end()));
     if (append) {

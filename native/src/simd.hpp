@@ -195,9 +195,9 @@ MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
 }
 
 // Shared vector kernels (both builds, dispatched). Anderson acceleration's history passes:
-// *ab = a . b and *ac = a . c over n entries.
-void dot2(const double* a, const double* b, const double* c, std::ptrdiff_t n, double* ab,
-          double* ac);
+// ab[j] = col_j . b and ac[j] = col_j . c over n entries, col_j = cols + j * ld, j < k.
+void dot2_columns(const double* cols, std::ptrdiff_t ld, int k, const double* b, const double* c,
+                  std::ptrdiff_t n, double* ab, double* ac);
 // out = base - sum_{j < k} gamma_j col_j over n entries, col_j = cols + j * ld (out may not
 // overlap the columns).
 void subtract_columns(const double* cols, std::ptrdiff_t ld, int k, const double* gamma,

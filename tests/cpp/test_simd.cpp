@@ -24,22 +24,37 @@ struct BaselineKernels {
 };
 
 // Anderson's history kernels against plain loops, every length up to two blocks of the
-// subtraction (tails of both the 8-wide dot loop and the 4-wide update), both builds.
-TEST(Simd, Dot2AndSubtractColumnsMatchPlainLoops) {
+// subtraction (tails of the 8-wide dot loop and of the 16- and 4-wide update), pairs of columns
+// and an odd one out, both builds.
+TEST(Simd, Dot2ColumnsAndSubtractColumnsMatchPlainLoops) {
   for (bool avx2 : {true, false}) {
     if (avx2 && !cpu_has_avx2_fma()) continue;
     const bool before = set_avx2_kernels_enabled(avx2);
-    for (int n : {0, 1, 3, 4, 7, 8, 9, 15, 17, 511, 512, 513, 1029}) {
+    for (int n : {0, 1, 3, 4, 7, 8, 9, 15, 16, 17, 20, 511, 512, 513, 1029}) {
       const int k = 5, ld = n + 3;
       std::vector<double> cols(static_cast<size_t>(k) * ld), b(n), c(n), base(n), gamma(k);
       for (size_t i = 0; i < cols.size(); ++i) cols[i] = std::sin(0.7 * i + 0.1);
       for (int i = 0; i < n; ++i) b[i] = std::cos(1.3 * i), c[i] = 0.5 - 0.01 * i, base[i] = i;
       for (int j = 0; j < k; ++j) gamma[j] = 0.3 * j - 0.5;
-      double ab = 0, ac = 0, want_b = 0, want_c = 0;
-      dot2(cols.data() + ld, b.data(), c.data(), n, &ab, &ac);
-      for (int i = 0; i < n; ++i) want_b += cols[ld + i] * b[i], want_c += cols[ld + i] * c[i];
-      EXPECT_NEAR(ab, want_b, 1e-12 * (1 + n)) << n << " " << avx2;
-      EXPECT_NEAR(ac, want_c, 1e-12 * (1 + n)) << n << " " << avx2;
+      for (int kk : {1, 2, 5}) {
+        std::vector<double> ab(kk, -1), ac(kk, -1);
+        dot2_columns(cols.data(), ld, kk, b.data(), c.data(), n, ab.data(), ac.data());
+        for (int j = 0; j < kk; ++j) {
+          double want_b = 0, want_c = 0;
+          for (int i = 0; i < n; ++i) {
+            want_b += cols[static_cast<size_t>(j) * ld + i] * b[i];
+            want_c += cols[static_cast<size_t>(j) * ld + i] * c[i];
+          }
+          EXPECT_NEAR(ab[j], want_b, 1e-12 * (1 + n)) << n << " " << kk << " " << j << " " << avx2;
+          EXPECT_NEAR(ac[j], want_c, 1e-12 * (1 + n)) << n << " " << kk << " " << j << " " << avx2;
+          // A column gives the same bits alone as in a pair (the sweep counts depend on them).
+          double one_b = 0, one_c = 0;
+          dot2_columns(cols.data() + static_cast<size_t>(j) * ld, ld, 1, b.data(), c.data(), n,
+                       &one_b, &one_c);
+          EXPECT_EQ(ab[j], one_b) << n << " " << kk << " " << j << " " << avx2;
+          EXPECT_EQ(ac[j], one_c) << n << " " << kk << " " << j << " " << avx2;
+        }
+      }
       std::vector<double> out(n, -7.0);
       subtract_columns(cols.data(), ld, k, gamma.data(), base.data(), out.data(), n);
       for (int i = 0; i < n; ++i) {
