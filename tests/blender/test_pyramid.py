@@ -478,8 +478,26 @@ def test_frames_of_a_background_run_converge_like_the_bake():
     assert not session.unsettled() and session.solve_status(obj)[0]
 
 
-def test_a_non_finite_result_is_never_written(monkeypatch):
-    """Review: a diverging solve wrote inf into the key and Settle said nothing."""
+def _huge(x):
+    return x * 1e300
+
+
+def _one_nan(x):
+    x = x.copy()
+    x[len(x) // 2, 1] = np.nan
+    return x
+
+
+def _one_below_float32(x):
+    x = x.copy()
+    x[-1, 2] = -1e39  # finite in float64, -inf once written as float32
+    return x
+
+
+@pytest.mark.parametrize("corrupt", [_huge, _one_nan, _one_below_float32])
+def test_a_non_finite_result_is_never_written(monkeypatch, corrupt):
+    """Review: a diverging solve wrote inf into the key and Settle said nothing. One bad
+    coordinate anywhere, of either sign, is enough."""
     obj, top, _ = pyramid_bar()
     top.empty.location.x += 0.6
     update()
@@ -489,7 +507,7 @@ def test_a_non_finite_result_is_never_written(monkeypatch):
 
     def overflowing(*a, **k):
         res = real(*a, **k)
-        res.positions = res.positions * 1e300
+        res.positions = corrupt(res.positions)
         return res
 
     monkeypatch.setattr(method, "solve", overflowing)
