@@ -198,7 +198,7 @@ MUTATIONS = [
         "native/src/simd.cpp",
         "for (; i < n; ++i) rb += a[i] * b[i], rc += a[i] * c[i];",
         "for (; i < n; ++i) rb += a[i] * b[i];",
-        "Anderson's dF^T f drops the entries after the last full block of 8",
+        "Anderson's dF^T f drops an odd column's entries after its last full block of 8",
     ),
     M(
         "P9",

@@ -494,7 +494,13 @@ def _one_below_float32(x):
     return x
 
 
-@pytest.mark.parametrize("corrupt", [_huge, _one_nan, _one_below_float32])
+def _one_above_float32(x):
+    x = x.copy()
+    x[0, 0] = 1e39
+    return x
+
+
+@pytest.mark.parametrize("corrupt", [_huge, _one_nan, _one_below_float32, _one_above_float32])
 def test_a_non_finite_result_is_never_written(monkeypatch, corrupt):
     """Review: a diverging solve wrote inf into the key and Settle said nothing. One bad
     coordinate anywhere, of either sign, is enough."""

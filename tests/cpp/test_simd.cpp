@@ -55,12 +55,16 @@ TEST(Simd, Dot2ColumnsAndSubtractColumnsMatchPlainLoops) {
           EXPECT_EQ(ac[j], one_c) << n << " " << kk << " " << j << " " << avx2;
         }
       }
-      std::vector<double> out(n, -7.0);
-      subtract_columns(cols.data(), ld, k, gamma.data(), base.data(), out.data(), n);
-      for (int i = 0; i < n; ++i) {
-        double want = base[i];
-        for (int j = 0; j < k; ++j) want -= gamma[j] * cols[static_cast<size_t>(j) * ld + i];
-        ASSERT_NEAR(out[i], want, 1e-12 * (1 + i)) << n << " " << i << " " << avx2;
+      // k = 0: the first sweep has no history (nothing read, nothing written)
+      dot2_columns(cols.data(), ld, 0, b.data(), c.data(), n, nullptr, nullptr);
+      for (int kk = 0; kk <= k; ++kk) {
+        std::vector<double> out(n, -7.0);
+        subtract_columns(cols.data(), ld, kk, gamma.data(), base.data(), out.data(), n);
+        for (int i = 0; i < n; ++i) {
+          double want = base[i];
+          for (int j = 0; j < kk; ++j) want -= gamma[j] * cols[static_cast<size_t>(j) * ld + i];
+          ASSERT_NEAR(out[i], want, 1e-12 * (1 + i)) << n << " " << kk << " " << i << " " << avx2;
+        }
       }
     }
     set_avx2_kernels_enabled(before);
