@@ -271,9 +271,9 @@ def test_stretch_correction_same_fixed_point_for_similar_poses():
 
 def test_stretch_correction_on_a_bent_bar_measured():
     """Both settle; with stretch the bar keeps its edge lengths better. The fixed points differ
-    (the weights differ wherever edges are stretched). Sweeps, measured with plain Gauss-Seidel
-    from the similarity start: see docs/pyramid.md for the numbers; here the stretched run must
-    not be slower than 1.5x the unstretched one, and both must converge."""
+    (the weights differ wherever edges are stretched). The sweeps each setting needs are
+    measured in docs/pyramid.md (neither is faster across poses, unlike the paper's claim), not
+    asserted here: the counts move with round-off."""
     v, f, lo, hi = bar()
     ctrl = np.concatenate([lo, hi])
     target = bent(v, lo, hi, 0.8)
