@@ -55,7 +55,8 @@ class PyramidDeformer:
     The constructor builds the description of every vertex (angles alpha_i, beta_i and lengths
     l_i relative to its one-ring), colours the vertex graph for parallel Gauss-Seidel and links
     the controls to their neighbours. deform() then iterates the paper's steps 1-3 from a start
-    (the rest mesh, or ``initial``) until the largest move of a sweep is below
+    (the rest mesh moved by the similarity that best maps the controls' rest positions onto
+    their targets, or ``initial``) until the largest move of a sweep is below
     ``tol`` x the rest bounding-box diagonal.
 
     Parameters
@@ -100,9 +101,11 @@ class PyramidDeformer:
         tol : stop once the largest vertex move of a sweep < tol x the rest bounding-box
             diagonal (0 runs the whole budget).
         initial : (n,3) start positions, e.g. the previous result for a live update with a
-            small budget; None starts from the rest mesh. Control rows are replaced.
+            small budget; None starts from the rest mesh moved by the controls' best-fit
+            similarity (rotation, uniform scale, translation). Control rows are replaced.
         stretch : scale the mean value weights by |v' - v'_i| / l_i (the paper's stretch
-            correction: keeps edge lengths and converges in fewer sweeps).
+            correction: keeps edge lengths better; not faster in our measurements,
+            docs/pyramid.md).
         push : the paper's step 2, control vertices push their neighbours to the height their
             own description predicts.
         method : "gauss-seidel" (graph-coloured, parallel) or "jacobi".

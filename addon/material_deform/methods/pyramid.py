@@ -119,7 +119,7 @@ def _stretch_of(solver: Solver, targets: np.ndarray) -> float:
 class PyramidMethod(Method):
     key = "PYRAMID"
     number = 3
-    label = "Pyramid Coords"
+    label = "Pyramid coordinates"
     description = (
         "Sheffer and Kraevoy: shape-preserving pyramid coordinates. The anchor faces' vertices "
         "are control vertices; the rest keeps its local shape (angles and projected lengths), "

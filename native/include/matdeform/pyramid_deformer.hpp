@@ -53,8 +53,10 @@ struct PyramidSolveOptions {
   bool push = true;            // step 2: control vertices push their neighbours
   PyramidMethod method = PyramidMethod::GaussSeidel;
   int anderson = 20;  // Anderson acceleration window over the sweeps (0: plain sweeps)
-  const Vertices* initial = nullptr;  // (n,3) start (controls are replaced); nullptr: rest
-  bool record_moves = false;          // keep every sweep's move in last_moves()
+  // (n,3) start (controls are replaced); nullptr: the rest mesh moved by the controls' best-fit
+  // similarity
+  const Vertices* initial = nullptr;
+  bool record_moves = false;  // keep every sweep's move in last_moves()
 };
 
 class PyramidDeformer {
