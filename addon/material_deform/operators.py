@@ -423,7 +423,7 @@ class OBJECT_OT_material_deform_settle(_ObjectOperator, bpy.types.Operator):
             raise BindError(session.stale_reason(obj))
         with _Progress(context) as progress:
             progress(0.1, "Material Deform: settling")
-            session.settle(obj, context.scene, context.evaluated_depsgraph_get())
+            session.settle(obj, context.scene, context.evaluated_depsgraph_get(), progress)
         status = session.solve_status(obj)
         if status is not None:  # iterative methods: say whether it converged
             self.report({"INFO"} if status[0] else {"WARNING"}, f"{obj.name}: {status[1]}")

@@ -545,12 +545,18 @@ def transforms_now(obj, entry: Entry, scene, depsgraph=None, mats=None) -> np.nd
 
 
 def compute(
-    obj, scene, depsgraph=None, budget: int | str | None = "live", entry=None, mats=None
+    obj,
+    scene,
+    depsgraph=None,
+    budget: int | str | None = "live",
+    entry=None,
+    mats=None,
+    progress=None,
 ) -> np.ndarray:
     """Deformed positions (n,3) float64 for the current Empty transforms. ``budget``: "live"
     (the method's per-update iteration budget), an int, or None (run to convergence).
     ``entry`` (from :func:`entry_for`) and ``mats`` (:func:`_live_matrices`): already at hand
-    in :func:`apply`."""
+    in :func:`apply`. ``progress``: see :meth:`methods.Method.solve`."""
     if entry is None:
         entry = entry_for(obj, scene)
     key = obj.as_pointer()
@@ -565,7 +571,7 @@ def compute(
     if budget == "live":
         budget = method.live_budget(obj)
     try:
-        res = method.solve(entry.solver, t, entry.state, budget)
+        res = method.solve(entry.solver, t, entry.state, budget, progress)
     except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
         raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
     if res.done:
@@ -645,9 +651,10 @@ def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
     return False
 
 
-def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> bool:
+def apply(obj, scene, depsgraph=None, force: bool = False, budget="live", progress=None) -> bool:
     """Write the deformation into the output shape key if any driver moved (or the last solve
-    had not converged yet). True if written. Never writes a non-finite result (BindError)."""
+    had not converged yet). True if written. Never writes a non-finite result (BindError).
+    ``progress``: see :meth:`methods.Method.solve`."""
     entry = entry_for(obj, scene)
     mats = _live_matrices(obj, depsgraph)
     mkey = _matrix_key(obj, depsgraph, mats)
@@ -660,7 +667,7 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live") -> boo
     elif entry.last_key is None and not entry.state:
         if _resume(obj, entry, scene, kb, mkey, depsgraph, mats):
             return False
-    x = compute(obj, scene, depsgraph, budget, entry, mats)
+    x = compute(obj, scene, depsgraph, budget, entry, mats, progress)
     check_finite(obj, entry, x)
     bridge.write_key(obj, kb, x)
     bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
@@ -702,10 +709,10 @@ def solve_status(obj) -> tuple[bool, str] | None:
         return None
 
 
-def settle(obj, scene, depsgraph=None) -> None:
+def settle(obj, scene, depsgraph=None, progress=None) -> None:
     """Solve the current pose to convergence and write it (Settle; plain update for direct
-    methods)."""
-    apply(obj, scene, depsgraph, force=True, budget=None)
+    methods). ``progress(fraction, text)``: called now and then by iterative methods."""
+    apply(obj, scene, depsgraph, force=True, budget=None, progress=progress)
 
 
 def record_failure(obj, reason: str) -> None:

@@ -54,8 +54,19 @@ void bind_pyramid_deformer(py::module_& m) {
           "deform",
           [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
              std::optional<Vertices> initial, bool stretch, bool push, const std::string& method,
-             bool record_moves, int anderson) {
+             bool record_moves, int anderson, std::optional<py::function> progress,
+             double progress_seconds) {
             PyramidSolveOptions o;
+            o.progress_seconds = progress_seconds;
+            if (progress) {
+              // Called between sweeps on this thread; the function outlives the call, so the
+              // callback holds a pointer (copies of it need no reference count, no GIL).
+              const py::function* f = &*progress;
+              o.progress = [f](int sweeps, double move) {
+                py::gil_scoped_acquire gil;
+                (*f)(sweeps, move);
+              };
+            }
             o.max_iterations = iterations;
             o.tol = tol;
             o.stretch = stretch;
@@ -69,7 +80,7 @@ void bind_pyramid_deformer(py::module_& m) {
           },
           py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
           py::arg("stretch"), py::arg("push"), py::arg("method"), py::arg("record_moves"),
-          py::arg("anderson"))
+          py::arg("anderson"), py::arg("progress") = py::none(), py::arg("progress_seconds") = 0.1)
       .def(
           "reconstruct",
           [](const PyramidDeformer& self, const Vertices& X, bool stretch) {

@@ -6,6 +6,7 @@
 #include <Eigen/SVD>
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -731,7 +732,9 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
     *e = static_cast<int>(static_cast<int64_t>(nf) * (p + 1) / parts);
   };
   int stored = 0, head = 0, it = 0;
-  // After each sweep: count it, record its move; true once the stopping rule is met.
+  auto reported = std::chrono::steady_clock::now();
+  // After each sweep: count it, record its move, report progress when due; true once the
+  // stopping rule is met.
   auto finished = [&]() {
     ++it;
     if (!(*move <= blowup)) {  // also NaN and infinity
@@ -740,7 +743,15 @@ int PyramidSolver::iterate(Vertices* X, const PyramidSolveOptions& o, int max_it
           "times the size of the mesh and its controls): the pose may be too strong for so few "
           "control vertices; add controls, or try stretch=False or push=False");
     }
-    if (moves) moves->push_back(diag > 0 ? *move / diag : *move);
+    const double rel = diag > 0 ? *move / diag : *move;
+    if (moves) moves->push_back(rel);
+    if (o.progress) {
+      const auto now = std::chrono::steady_clock::now();
+      if (std::chrono::duration<double>(now - reported).count() >= o.progress_seconds) {
+        reported = now;
+        o.progress(it, rel);
+      }
+    }
     return *move < limit;
   };
   if (window == 0) {
@@ -947,6 +958,9 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     throw std::invalid_argument("tol: expected a finite value >= 0");
   }
   if (options.anderson < 0) throw std::invalid_argument("anderson: expected >= 0");
+  if (!(options.progress_seconds >= 0)) {
+    throw std::invalid_argument("progress_seconds: expected a value >= 0");
+  }
   Vertices X = level.rest;
   if (options.initial) {
     if (options.initial->rows() != n) {

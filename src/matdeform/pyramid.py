@@ -93,6 +93,8 @@ class PyramidDeformer:
         method: str = "gauss-seidel",
         anderson: int = 20,
         record_moves: bool = False,
+        progress=None,
+        progress_seconds: float = 0.1,
     ) -> np.ndarray:
         """Deformed positions (n,3) float64 with the control vertices at control_positions.
 
@@ -111,6 +113,11 @@ class PyramidDeformer:
         method : "gauss-seidel" (graph-coloured, parallel) or "jacobi".
         anderson : Anderson acceleration window over the sweeps, int >= 0 (0: plain sweeps).
         record_moves : keep every sweep's move in ``last_moves``.
+        progress : None, or a callable ``progress(sweeps, move)`` (int, float: that sweep's
+            largest move as a fraction of the diagonal), called after a sweep at most every
+            ``progress_seconds`` (float >= 0, 0: after every sweep) on the calling thread, for
+            a progress bar. An exception it raises ends the call and propagates. The result
+            does not depend on it.
 
         After the call ``last_iterations`` is the number of sweeps and ``last_move`` the largest
         move of the last one, as a fraction of the rest diagonal (NaN after 0 sweeps). The
@@ -135,8 +142,26 @@ class PyramidDeformer:
             raise ValueError(f"method: expected one of {_METHODS}, got {method!r}")
         if not _is_count(anderson):
             raise ValueError(f"anderson: expected an integer >= 0, got {anderson!r}")
+        if progress is not None and not callable(progress):
+            raise ValueError(f"progress: expected a callable or None, got {progress!r}")
+        try:
+            every = float(progress_seconds)
+        except (TypeError, ValueError):
+            every = float("nan")
+        if not every >= 0:  # also NaN
+            raise ValueError(f"progress_seconds: expected a float >= 0, got {progress_seconds!r}")
         return self._core.deform(
-            x, it, t, x0, bool(stretch), bool(push), method, bool(record_moves), int(anderson)
+            x,
+            it,
+            t,
+            x0,
+            bool(stretch),
+            bool(push),
+            method,
+            bool(record_moves),
+            int(anderson),
+            progress,
+            every,
         )
 
     def reconstruct(self, positions, stretch: bool = False) -> np.ndarray:

@@ -95,6 +95,46 @@ def test_settle_equals_the_numpy_library_on_the_same_inputs():
     assert np.abs(want - rest(obj)).max() > 0.5  # really posed
 
 
+def test_settle_shows_its_progress_while_it_sweeps(monkeypatch):
+    """Settle's status text and progress fraction move during the solve (before, one fixed
+    "settling" text stood for up to Max Sweeps sweeps), and the result is the same bits."""
+    obj, top, bottom = pyramid_bar()
+    obj.material_deform.live = False
+    obj.material_deform.pyramid.tolerance = 1e-9
+    top.empty.location = (0.8, 0.3, 2.4)
+    top.empty.rotation_euler = (0.3, 0.7, -0.2)
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    quiet = output(obj).copy()
+    texts, fractions = [], []
+    monkeypatch.setattr(bridge, "status", lambda _c, text: texts.append(text))
+    monkeypatch.setattr(_pyramid_module(), "PROGRESS_SECONDS", 0.0)
+    real = _pyramid_module()._settle_report
+
+    def recording(progress, budget, tol):
+        def both(fraction, text):
+            fractions.append(fraction)
+            progress(fraction, text)
+
+        return real(both, budget, tol)
+
+    monkeypatch.setattr(_pyramid_module(), "_settle_report", recording)
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    sweeps = [int(t.split(", ")[1].split()[0]) for t in texts if t and "sweeps" in t]
+    iterations = session.entry_for(obj, bpy.context.scene).state["iterations"]
+    assert sweeps == list(range(1, iterations + 1)) and iterations > 20
+    assert fractions == sorted(fractions) and 0 < fractions[0] and fractions[-1] <= 1
+    assert fractions[-1] > 0.9  # converged: the log-scale share of the way to tol
+    assert texts[-1] is None  # cleared at the end
+    assert output(obj).tobytes() == quiet.tobytes()
+
+
+def _pyramid_module():
+    import importlib
+
+    return importlib.import_module(type(methods.get("PYRAMID")).__module__)
+
+
 def test_stretch_setting_reaches_the_solver():
     obj, top, bottom = pyramid_bar()
     obj.material_deform.live = False

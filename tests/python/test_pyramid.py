@@ -344,6 +344,37 @@ def test_warm_start_budget_and_move_history():
     np.testing.assert_array_equal(W[ctrl], t2)
 
 
+def test_progress_reports_every_sweep_and_changes_nothing():
+    """progress_seconds=0: one call per sweep with its count and move (the last_moves entries);
+    the result is bit-identical to a run without it. An exception in it ends the solve."""
+    v, f, lo, hi = bar()
+    d = md.PyramidDeformer(v, f, np.concatenate([lo, hi]))
+    target = bent(v, lo, hi, 0.8)
+    plain = d.deform(target, tol=1e-8, record_moves=True)
+    moves = d.last_moves.copy()
+    calls = []
+    x = d.deform(target, tol=1e-8, progress=lambda s, m: calls.append((s, m)), progress_seconds=0)
+    assert x.tobytes() == plain.tobytes()
+    assert [s for s, _ in calls] == list(range(1, len(moves) + 1))
+    np.testing.assert_array_equal([m for _, m in calls], moves)
+    assert d.last_iterations == len(moves) > 50
+    # the default interval: far fewer calls than sweeps on a long solve, none more often
+    calls.clear()
+    d.deform(target, tol=0, iterations=30000, progress=lambda s, m: calls.append(s))
+    assert len(calls) < 30000 // 10 and calls == sorted(calls) and calls[-1] <= 30000
+
+    class Stop(Exception):
+        pass
+
+    def stop_at_5(s, _m):
+        if s == 5:
+            raise Stop
+
+    with pytest.raises(Stop):
+        d.deform(target, tol=0, iterations=1000, progress=stop_at_5, progress_seconds=0)
+    np.testing.assert_array_equal(d.deform(target, tol=1e-8), plain)  # still usable
+
+
 def test_a_part_without_controls_keeps_its_start():
     v, f, lo, hi = bar()
     v2, f2 = bumpy_grid(4, 4)
@@ -414,6 +445,11 @@ def test_bad_deform_arguments_raise_and_change_nothing():
         d.deform(good, method="sor")
     with pytest.raises(ValueError, match="anderson: expected an integer >= 0"):
         d.deform(good, anderson=-2)
+    with pytest.raises(ValueError, match="progress: expected a callable or None"):
+        d.deform(good, progress=3)
+    for every in (-0.1, np.nan, "x"):
+        with pytest.raises(ValueError, match="progress_seconds: expected a float >= 0"):
+            d.deform(good, progress=print, progress_seconds=every)
     with pytest.raises(ValueError, match=r"positions: expected shape"):
         d.reconstruct(v[:3])
     np.testing.assert_array_equal(d.deform(good, initial=v), X0)

@@ -72,10 +72,14 @@ class Method:
         """Build and return the solver (all the heavy precomputation). Raise BindError."""
         raise NotImplementedError
 
-    def solve(self, solver, transforms: np.ndarray, state: dict, budget: int | None) -> Result:
+    def solve(
+        self, solver, transforms: np.ndarray, state: dict, budget: int | None, progress=None
+    ) -> Result:
         """Positions for the anchor transforms (k,4,4), float64, each the motion of anchor a
         since bind in the mesh's local space. ``budget``: iterations for one live update, None
-        to run to convergence (Settle, Bake). ``state`` is kept per object between calls."""
+        to run to convergence (Settle, Bake). ``state`` is kept per object between calls.
+        ``progress``: None or ``progress(fraction, text)``, which a long solve may call now and
+        then (Settle's progress bar and status text)."""
         raise NotImplementedError
 
     def check_live(self, obj, entry, depsgraph) -> None:

@@ -379,7 +379,7 @@ class EdgeMethod(Method):
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
         return Solver(dfm, rest, constrained, owner_full[verts], dfm.diagonal, len(rest), s["bend"])
 
-    def solve(self, solver, transforms, state, budget) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
         p = state.get("params") or _default_params()
         t = np.asarray(transforms, dtype=np.float64)
         r = solver.rest[solver.constrained]

@@ -170,7 +170,7 @@ class MaterialMethod(Method):
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
         return Solver(d, use_4x4)
 
-    def solve(self, solver, transforms, state, budget) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
         t = transforms if solver.use_4x4 else np.ascontiguousarray(transforms[:, :3, :3])
         return Result(solver.deformer.deform(t))
 

@@ -299,7 +299,7 @@ class PoseSpaceMethod(Method):
             rot = np.stack([rf.T @ _rotation(transforms[j]) for j in solver.joints])
         return hp, rot
 
-    def solve(self, solver, transforms, state, budget) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
         hp, rot = self._targets(solver, transforms)
         x = solver.deformer.deform(hp, rot)
         state["weights"] = solver.deformer.example_weights

@@ -11,6 +11,7 @@ common fingerprint). See docs/pyramid.md.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import bpy
@@ -105,6 +106,29 @@ def control_vertices(inputs) -> tuple[np.ndarray, np.ndarray]:
     return inputs.compact_index(idx[order]), np.asarray(owner, np.int64)[order]
 
 
+PROGRESS_SECONDS = 0.1  # s between progress reports of a long solve (tests set 0)
+
+
+def _settle_report(progress, budget: int, tol: float):
+    """The library's progress(sweeps, move) as the operator's progress(fraction, text): the
+    fraction is the larger of the budget spent and the way from the first reported move down
+    to tol on a log scale, never decreasing."""
+    seen = {"first": None, "fraction": 0.0}
+
+    def report(sweeps: int, move: float) -> None:
+        first = seen["first"] = seen["first"] or move
+        by_move = 0.0
+        if first > tol and move > 0:
+            by_move = math.log(first / max(move, tol)) / math.log(first / tol)
+        seen["fraction"] = max(seen["fraction"], sweeps / max(budget, 1), by_move)
+        progress(
+            min(seen["fraction"], 1.0),
+            f"Material Deform: settling, {sweeps} sweeps, move {move:.1e} (tolerance {tol:g})",
+        )
+
+    return report
+
+
 def _extent(p: np.ndarray) -> float:
     """Bounding-box diagonal of points (m,3)."""
     return float(np.linalg.norm(p.max(axis=0) - p.min(axis=0))) if len(p) else 0.0
@@ -146,7 +170,7 @@ class PyramidMethod(Method):
         t = np.asarray(transforms, np.float64)[solver.owner]
         return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
 
-    def solve(self, solver, transforms, state, budget) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
         # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
         # before any live update: the defaults then)
         tol, stretch, most = state.get("settings", (1e-6, True, 20000))
@@ -167,7 +191,15 @@ class PyramidMethod(Method):
             it, x0 = min(budget, max(most - spent, 1)), state.get("x")
         d = solver.deformer
         try:
-            x = d.deform(targets, iterations=it, tol=tol, initial=x0, stretch=stretch)
+            x = d.deform(
+                targets,
+                iterations=it,
+                tol=tol,
+                initial=x0,
+                stretch=stretch,
+                progress=None if progress is None else _settle_report(progress, it, tol),
+                progress_seconds=PROGRESS_SECONDS,
+            )
             # The library's runaway test is relative to the start, and a live chain starts
             # from the last result: so also bound the result by the pose itself. A result
             # spans about the rest diagonal times the controls' spread relative to rest; 3x

@@ -3,6 +3,7 @@
 // vertices is found by re-placing the other vertices from their descriptions until they settle.
 #pragma once
 
+#include <functional>
 #include <memory>
 #include <vector>
 
@@ -57,6 +58,11 @@ struct PyramidSolveOptions {
   // similarity
   const Vertices* initial = nullptr;
   bool record_moves = false;  // keep every sweep's move in last_moves()
+  // Called on the calling thread after a sweep with (sweeps so far, that sweep's largest move as
+  // a fraction of the rest diagonal), at most every progress_seconds (0: after every sweep).
+  // An exception it throws ends deform() and propagates.
+  std::function<void(int, double)> progress;
+  double progress_seconds = 0.1;
 };
 
 class PyramidDeformer {
