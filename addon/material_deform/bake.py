@@ -19,10 +19,12 @@ def state(obj) -> str:
     return f"Baked {n} frame(s) to shape keys" if n else ""
 
 
-def _solved_frames(obj, scene, frames, progress):
+def _solved_frames(obj, scene, frames, progress, unsettled=None):
     """(frame, positions (n,3)) for every frame, each solved to convergence (the method picks
     its start: Edge continues from the previous frame, Pyramid starts every frame cold). Never
-    a non-finite frame (BindError). The scene's frame is restored afterwards."""
+    a non-finite frame (BindError). The scene's frame is restored afterwards. ``unsettled``: a
+    list that gets (frame, status text) of every frame an iterative method wrote without
+    converging (it ran out of Max Sweeps / Max Iterations)."""
     progress = progress or (lambda _f, _t: None)
     entry = session.entry_for(obj, scene)
     old = scene.frame_current
@@ -33,6 +35,9 @@ def _solved_frames(obj, scene, frames, progress):
             dg = bridge.evaluated_depsgraph_from_scene(scene)
             x = session.compute(obj, scene, dg, budget=None)
             session.check_finite(obj, entry, x)
+            status = session.solve_status(obj)
+            if unsettled is not None and status is not None and not status[0]:
+                unsettled.append((f, status[1]))
             yield f, x
     finally:
         bridge.frame_set(scene, old)
@@ -45,15 +50,18 @@ def _hand_over(obj) -> None:
     bridge.set_output_value(obj, 0.0, s.output_key_name or bridge.OUTPUT_KEY)
 
 
-def bake(obj, scene, frames, progress=None) -> list[str]:
+def bake(obj, scene, frames, progress=None, unsettled=None) -> list[str]:
     """Write one keyframed shape key per frame (replacing an earlier bake); turns Live off and
     mutes the live output. Every frame is solved before anything is written, so an error
-    leaves the object as it was."""
+    leaves the object as it was. ``unsettled``: see :func:`_solved_frames`."""
     frames = list(frames)
     s = settings(obj)
     live, s.live = s.live, False  # our own frame changes must not write the live key
     try:
-        solved = [(f, x.astype("float32")) for f, x in _solved_frames(obj, scene, frames, progress)]
+        solved = [
+            (f, x.astype("float32"))
+            for f, x in _solved_frames(obj, scene, frames, progress, unsettled)
+        ]
     except BaseException:
         s.live = live
         raise
@@ -81,9 +89,10 @@ def cache_path(obj, path: str) -> tuple[str, str]:
     return path, full
 
 
-def bake_point_cache(obj, scene, frames, path: str = "", progress=None) -> str:
+def bake_point_cache(obj, scene, frames, path: str = "", progress=None, unsettled=None) -> str:
     """Write the frames to a .pc2 file and read it back through a Mesh Cache modifier at the
-    top of the stack (replacing an earlier bake); turns Live off. Returns the absolute path."""
+    top of the stack (replacing an earlier bake); turns Live off. Returns the absolute path.
+    ``unsettled``: see :func:`_solved_frames`."""
     frames = list(frames)
     stored, full = cache_path(obj, path)
     n = len(obj.data.vertices)
@@ -91,7 +100,7 @@ def bake_point_cache(obj, scene, frames, path: str = "", progress=None) -> str:
     live, s.live = s.live, False
     try:
         with PC2Writer(full, n, len(frames), frames[0]) as out:
-            for _f, x in _solved_frames(obj, scene, frames, progress):
+            for _f, x in _solved_frames(obj, scene, frames, progress, unsettled):
                 out.add(x)
     except OSError as exc:
         s.live = live
@@ -103,6 +112,17 @@ def bake_point_cache(obj, scene, frames, path: str = "", progress=None) -> str:
     bridge.add_cache_modifier(obj, stored, frames[0])
     _hand_over(obj)
     return full
+
+
+def unsettled_warning(unsettled, count: int) -> str:
+    """The bake operators' WARNING for frames written before they converged ('' if none)."""
+    if not unsettled:
+        return ""
+    frames = ", ".join(str(f) for f, _ in unsettled[:8]) + (", ..." if len(unsettled) > 8 else "")
+    return (
+        f"{len(unsettled)} of {count} frame(s) did not converge (frames {frames}); "
+        f"frame {unsettled[0][0]}: {unsettled[0][1]}"
+    )
 
 
 def clear(obj, scene, restore_live: bool = True) -> bool:

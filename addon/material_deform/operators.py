@@ -501,9 +501,12 @@ class OBJECT_OT_material_deform_bake(_BakeOperator, bpy.types.Operator):
     def run(self, context, obj):
         _to_object_mode(context, obj)
         frames = self.frames(context, obj)
+        unsettled = []
         with _Progress(context) as progress:
-            names = bake.bake(obj, context.scene, frames, progress)
+            names = bake.bake(obj, context.scene, frames, progress, unsettled)
         self.report({"INFO"}, f"Baked {len(names)} frame(s) to shape keys; Live is off")
+        if unsettled:
+            self.report({"WARNING"}, bake.unsettled_warning(unsettled, len(names)))
         return {"FINISHED"}
 
 
@@ -526,9 +529,14 @@ class OBJECT_OT_material_deform_bake_point_cache(_BakeOperator, bpy.types.Operat
         frames = self.frames(context, obj)
         if not self.filepath:
             self.filepath = bake.cache_path(obj, obj.material_deform.bake_cache_path)[0]
+        unsettled = []
         with _Progress(context) as progress:
-            path = bake.bake_point_cache(obj, context.scene, frames, self.filepath, progress)
+            path = bake.bake_point_cache(
+                obj, context.scene, frames, self.filepath, progress, unsettled
+            )
         self.report({"INFO"}, f"Baked {len(frames)} frame(s) to {path}; Live is off")
+        if unsettled:
+            self.report({"WARNING"}, bake.unsettled_warning(unsettled, len(frames)))
         return {"FINISHED"}
 
 

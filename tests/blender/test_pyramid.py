@@ -22,7 +22,7 @@ from helpers import (
     two_end_anchors,
     update,
 )
-from material_deform import bridge, handlers, methods, session
+from material_deform import bake, bridge, handlers, methods, session
 from material_deform.core import load
 from mathutils import Euler, Matrix, Vector
 
@@ -378,6 +378,38 @@ def test_bake_converges_each_frame():
     # each frame from the solver's own start, not from the previous frame: the library's result
     np.testing.assert_allclose(last.reshape(-1, 3), want, atol=1e-6 * diagonal(want))
     assert math.isfinite(float(last.sum()))
+
+
+@pytest.mark.parametrize("output", ["SHAPE_KEYS", "POINT_CACHE"])
+def test_bake_warns_about_frames_that_did_not_converge(monkeypatch, tmp_path, output):
+    """Audit: a frame that ran out of Max Sweeps was baked with only "Baked N frame(s)"."""
+    obj, top, bottom = animated_pyramid_bar()
+    s = obj.material_deform
+    s.pyramid.max_iterations = 5
+    s.bake_start, s.bake_end = 1, 3
+    warned = []
+    real = bake.unsettled_warning
+    monkeypatch.setattr(
+        bake, "unsettled_warning", lambda u, n: warned.append((list(u), n)) or real(u, n)
+    )
+    if output == "SHAPE_KEYS":
+        assert bpy.ops.object.material_deform_bake() == {"FINISHED"}
+    else:
+        path = str(tmp_path / "bar.pc2")
+        op = bpy.ops.object.material_deform_bake_point_cache
+        assert op(frame_start=1, frame_end=3, filepath=path) == {"FINISHED"}
+    ((unsettled, n),) = warned
+    most = s.pyramid.max_iterations  # 5 is below the setting's minimum
+    assert most < 100
+    assert n == 3 and [f for f, _ in unsettled] == [1, 2, 3]  # the top Empty is turned on all
+    assert all(f"Not converged after {most} sweeps" in text for _, text in unsettled)
+    text = real(unsettled, n)
+    assert text.startswith("3 of 3 frame(s) did not converge (frames 1, 2, 3)") and "Max" in text
+    # converging frames: no warning
+    warned.clear()
+    s.pyramid.max_iterations = 20000
+    assert bpy.ops.object.material_deform_bake() == {"FINISHED"}
+    assert warned == []
 
 
 @pytest.mark.parametrize("budget", [10, 17])
