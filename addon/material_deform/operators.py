@@ -422,7 +422,7 @@ class OBJECT_OT_material_deform_settle(_ObjectOperator, bpy.types.Operator):
         if session.full_check(obj, context.scene):
             raise BindError(session.stale_reason(obj))
         with _Progress(context) as progress:
-            progress(0.1, "Material Deform: settling")
+            progress(0.0, "Material Deform: settling")  # iterative methods report as they go
             session.settle(obj, context.scene, context.evaluated_depsgraph_get(), progress)
         status = session.solve_status(obj)
         if status is not None:  # iterative methods: say whether it converged

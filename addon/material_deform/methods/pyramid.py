@@ -112,19 +112,23 @@ PROGRESS_SECONDS = 0.1  # s between progress reports of a long solve (tests set 
 def _settle_report(progress, budget: int, tol: float):
     """The library's progress(sweeps, move) as the operator's progress(fraction, text): the
     fraction is the larger of the budget spent and the way from the first reported move down
-    to tol on a log scale, never decreasing."""
+    to tol on a log scale, never decreasing. A failing progress display never fails the solve
+    (a RuntimeError from it would read as a diverged iteration)."""
     seen = {"first": None, "fraction": 0.0}
 
     def report(sweeps: int, move: float) -> None:
         first = seen["first"] = seen["first"] or move
         by_move = 0.0
-        if first > tol and move > 0:
+        if first > tol > 0 and move > 0:
             by_move = math.log(first / max(move, tol)) / math.log(first / tol)
         seen["fraction"] = max(seen["fraction"], sweeps / max(budget, 1), by_move)
-        progress(
-            min(seen["fraction"], 1.0),
-            f"Material Deform: settling, {sweeps} sweeps, move {move:.1e} (tolerance {tol:g})",
-        )
+        try:
+            progress(
+                min(seen["fraction"], 1.0),
+                f"Material Deform: settling, {sweeps} sweeps, move {move:.1e} (tolerance {tol:g})",
+            )
+        except Exception as exc:  # the display only
+            print(f"Material Deform: progress display failed: {exc}")
 
     return report
 
