@@ -160,6 +160,16 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
 
   follow_ = std::make_unique<PoissonRepositioner>(sub_rest_, sub_faces_, shear_,
                                                   fixed_set(pinned_ ? *pinned_ : anchor_vertices_));
+  for (int v : follow_->fixed()) {
+    std::pair<int, int> range{0, 0};
+    const auto it = std::lower_bound(anchor_vertices_.begin(), anchor_vertices_.end(), v);
+    if (!std::binary_search(boundary_.begin(), boundary_.end(), v) &&
+        it != anchor_vertices_.end() && *it == v) {
+      const size_t j = static_cast<size_t>(it - anchor_vertices_.begin());
+      range = {av_offsets_[j], av_offsets_[j + 1]};
+    }
+    follow_anchors_.push_back(range);
+  }
 }
 
 MaterialDeformer::~MaterialDeformer() = default;
@@ -250,16 +260,15 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
     s0 = pinned_->size();
   }
   // Anchor vertices follow the mean of their anchors' full transforms; others stay at rest.
+  // Only follow_ fixes anchor vertices, and only 4x4 transforms carry a translation to follow.
+  const bool follow = has_translation && &rep == follow_.get();
   for (size_t s = s0; s < fixed.size(); ++s) {
-    const int v = fixed[s];
-    const Eigen::Vector3d x = sub_rest_.row(v).transpose();
+    const Eigen::Vector3d x = sub_rest_.row(fixed[s]).transpose();
     Eigen::Vector3d p = x;
-    const bool boundary = std::binary_search(boundary_.begin(), boundary_.end(), v);
-    auto it = std::lower_bound(anchor_vertices_.begin(), anchor_vertices_.end(), v);
-    if (has_translation && !boundary && it != anchor_vertices_.end() && *it == v) {
-      const size_t j = static_cast<size_t>(it - anchor_vertices_.begin());
+    const int b = follow ? follow_anchors_[s].first : 0;
+    const int e = follow ? follow_anchors_[s].second : 0;
+    if (e > b) {
       p.setZero();
-      const int b = av_offsets_[j], e = av_offsets_[j + 1];
       for (int t = b; t < e; ++t) {
         const Eigen::Matrix4d& T = transforms[static_cast<size_t>(av_anchors_[t])];
         p += T.topLeftCorner<3, 3>() * x + T.topRightCorner<3, 1>();

@@ -88,6 +88,9 @@ class MaterialDeformer {
   // Region vertex -> anchors that use it, CSR over the sorted anchor_vertices_.
   std::vector<int> anchor_vertices_;
   std::vector<int> av_offsets_, av_anchors_;
+  // Per fixed vertex of follow_ (its order): the [begin, end) of its anchors in av_anchors_,
+  // empty for boundary and non-anchor vertices, so that deform() does no searching.
+  std::vector<std::pair<int, int>> follow_anchors_;
   mutable std::unique_ptr<PoissonRepositioner> follow_;
   mutable std::unique_ptr<PoissonRepositioner> free_;
   // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the
