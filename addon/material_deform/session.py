@@ -668,8 +668,7 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live", progre
         if _resume(obj, entry, scene, kb, mkey, depsgraph, mats):
             return False
     x = compute(obj, scene, depsgraph, budget, entry, mats, progress)
-    check_finite(obj, entry, x)
-    bridge.write_key(obj, kb, x)
+    bridge.write_key(obj, kb, check_finite(obj, entry, x))
     bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
     entry.last_key = mkey
     return True
@@ -678,15 +677,18 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live", progre
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
 
 
-def check_finite(obj, entry: Entry, x: np.ndarray) -> None:
-    """BindError unless every coordinate of x is finite and fits a float32 (what keys and
-    point caches store). The method's state is dropped then: an iterative method must not
-    continue from that iterate."""
-    flat = np.ascontiguousarray(x).reshape(-1)
-    # Two reductions (~15 us at 50k faces); NaN propagates through both and fails the
-    # comparison. Not a dot product: numpy hands one of 75k entries to OpenBLAS's threads, and
-    # OpenBLAS's worker then competes for the two cores with the solver's task pool (the median
-    # 50k live update went from ~4 to ~2 ms without it).
+def check_finite(obj, entry: Entry, x: np.ndarray) -> np.ndarray:
+    """x as the contiguous float32 (n,3) array that keys and point caches store; BindError
+    unless every coordinate of it is finite (a float64 beyond float32's range becomes inf).
+    The method's state is dropped then: an iterative method must not continue from that
+    iterate."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        x32 = np.ascontiguousarray(x, dtype=np.float32)
+    flat = x32.reshape(-1)
+    # Two reductions on the float32 copy the key write needs anyway (~10 us at 50k faces);
+    # NaN propagates through both and fails the comparison. Not a dot product: numpy hands one
+    # of 75k entries to OpenBLAS's threads, and OpenBLAS's worker then competes for the two
+    # cores with the solver's task pool (the median 50k live update went from ~4 to ~2 ms).
     lo, hi = (float(flat.min()), float(flat.max())) if flat.size else (0.0, 0.0)
     if not (-_FLOAT32_MAX <= lo and hi <= _FLOAT32_MAX):
         entry.state.clear()
@@ -695,6 +697,7 @@ def check_finite(obj, entry: Entry, x: np.ndarray) -> None:
             f"Cannot pose '{obj.name}': the solver returned coordinates that are not finite "
             "(the shape key keeps its last result)"
         )
+    return x32
 
 
 def solve_status(obj) -> tuple[bool, str] | None:
