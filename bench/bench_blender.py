@@ -18,6 +18,10 @@ Threads: the add-on's default (both cores); MATDEFORM_THREADS=1 for one.
 does: "shift" (default: the top Empty moves, the lower bound), "free" (every Empty turns freely
 and moves, as an artist poses a character) or "scaled" (as "free", and one Empty is scaled by
 (1.3, 1, 0.8) along its own axes). Laplacian Deform gets the same rings, one Hook per ring.
+
+--floor adds a third block to the loop: the same MD updates with deform() answering at once
+(a stored result), i.e. everything but the solve: Laplacian / that is the best ratio any solver
+could reach in this add-on.
 """
 
 import argparse
@@ -231,7 +235,7 @@ def timed_block(cycle, count, i):
     return times, i
 
 
-def bench_size(target_faces, reps, budget_s, k=2, motion="shift"):
+def bench_size(target_faces, reps, budget_s, k=2, motion="shift", floor=False):
     from material_deform import session
 
     rings, sides = tube_dims(target_faces)
@@ -287,13 +291,35 @@ def bench_size(target_faces, reps, budget_s, k=2, motion="shift"):
     # which does not happen while a user keeps dragging one Empty. Each cycle moves only its own
     # Empty, so only its own object is re-evaluated; the add-on's handler still runs in the
     # Laplacian cycle and finds nothing to do, as it would in a real scene.
-    md_times, lap_times, block_ratios = [], [], []
+    # --floor: the same MD updates with deform() answering instantly (a stored result): what
+    # the add-on and Blender cost around the solve, i.e. the best ratio any solver could reach.
+    real_deformer = entry.solver.deformer
+    stored = real_deformer.deform(t)
+
+    class Instant:
+        def __getattr__(self, name):
+            return getattr(real_deformer, name)
+
+        def deform(self, *a, **k):
+            return stored
+
+    def md_floor_cycle(i):
+        entry.solver.deformer = Instant()
+        try:
+            md_cycle(i)
+        finally:
+            entry.solver.deformer = real_deformer
+
+    md_times, lap_times, floor_times, block_ratios = [], [], [], []
     ticks0 = cpu_ticks()
     start = time.perf_counter()
     i = 0
     while len(md_times) < reps or len(lap_times) < max(3, reps // 4):
         md_block, i = timed_block(md_cycle, 11, i)
         lap_block, i = timed_block(lap_cycle, 3, i)
+        if floor:
+            floor_block, i = timed_block(md_floor_cycle, 11, i)
+            floor_times += floor_block
         md_times += md_block
         lap_times += lap_block
         # The ratio within one block (about a second) compares both methods at the same machine
@@ -302,6 +328,7 @@ def bench_size(target_faces, reps, budget_s, k=2, motion="shift"):
         if time.perf_counter() - start > 4 * budget_s:
             break
     cycle_ms = 1000 * statistics.median(md_times)
+    floor_ms = 1000 * statistics.median(floor_times) if floor_times else None
     lap_ms = 1000 * statistics.median(lap_times)
     # CPU time the hypervisor gave to other guests while we wanted to run (this VM is shared)
     ticks1 = cpu_ticks()
@@ -327,6 +354,7 @@ def bench_size(target_faces, reps, budget_s, k=2, motion="shift"):
         "md_solve": solve,
         "md_apply": apply_ms,
         "md_cycle": cycle_ms,
+        "md_floor": floor_ms,
         "lap_bind_s": lap_bind,
         "lap_cycle": lap_ms,
         "block_ratio": statistics.median(block_ratios),
@@ -349,6 +377,11 @@ def main():
     )
     ap.add_argument("--anchors", type=int, default=2, help="anchor rings along the tube")
     ap.add_argument("--motion", choices=("shift", "free", "scaled"), default="shift")
+    ap.add_argument(
+        "--floor",
+        action="store_true",
+        help="also time MD updates whose solve answers instantly (the add-on's and Blender's part)",
+    )
     args = ap.parse_args(argv)
     spinners = keep_cpus_awake() if args.keep_cpus_awake else []
 
@@ -357,7 +390,8 @@ def main():
     addon_utils.enable("material_deform", default_set=True)
     try:
         rows = [
-            bench_size(s, args.reps, args.budget, args.anchors, args.motion) for s in args.sizes
+            bench_size(s, args.reps, args.budget, args.anchors, args.motion, args.floor)
+            for s in args.sizes
         ]
     finally:
         for p in spinners:
@@ -380,6 +414,11 @@ def main():
             f"{r['md_apply']:.2f} | {r['md_cycle']:.2f} | {r['lap_bind_s']:.2f} | "
             f"{r['lap_cycle']:.1f} | {r['lap_cycle'] / r['md_cycle']:.1f}x | "
             f"{r['block_ratio']:.1f}x |"
+        )
+    for r in rows if args.floor else []:
+        lines.append(
+            f"{r['tris']} triangles, the same updates with an instant solve: "
+            f"{r['md_floor']:.2f} ms; Laplacian / that: {r['lap_cycle'] / r['md_floor']:.1f}x"
         )
     lines.append("")
     lines.append(
