@@ -214,6 +214,28 @@ MUTATIONS = [
         "return c + (Rp * (row(R0, v) - c0));",
         "followers (quaternion-fit path) ignore the scale of their neighbourhood",
     ),
+    # Session 13: the anchor vertices' transforms looked up at construction.
+    M(
+        "D1",
+        "native/src/deformer.cpp",
+        "const bool follow = has_translation && &rep == follow_.get();",
+        "const bool follow = &rep == follow_.get();",
+        "pinned anchor vertices follow their anchor's linear part with 3x3 transforms too",
+    ),
+    M(
+        "D2",
+        "native/src/deformer.cpp",
+        "range = {av_offsets_[j], av_offsets_[j + 1]};",
+        "range = {av_offsets_[j], av_offsets_[j] + 1};",
+        "a vertex shared by two anchors follows only the first",
+    ),
+    M(
+        "D3",
+        "native/src/deformer.cpp",
+        "if (!std::binary_search(boundary_.begin(), boundary_.end(), v) &&\n        it != ",
+        "if (it != ",
+        "a region-boundary vertex of an anchor face follows the anchor instead of staying at rest",
+    ),
     # Session 10: the blend's weight reads and lane fallbacks, the pyramid's in-place sweeps.
     M(
         "T1",

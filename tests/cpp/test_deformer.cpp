@@ -77,6 +77,53 @@ TEST(Deformer, AnchorsSharingVerticesTakeTheMeanOfTheirTransforms) {
   EXPECT_GT((X - V).cwiseAbs().maxCoeff(), 0.5);
 }
 
+TEST(Deformer, PinnedAnchorVerticesFollowTheirAnchorOnlyWithATranslation) {
+  // Pinned without positions: a pinned vertex of an anchor face follows that anchor's full
+  // transform when the transforms are 4x4, and stays at rest when they are 3x3 (no translation
+  // to follow); a pinned vertex of no anchor stays at rest either way.
+  Vertices V;
+  Faces F;
+  meshes::make_bar(10, 10.0, &V, &F);
+  const int m = static_cast<int>(F.rows());
+  DeformerOptions options;
+  options.pinned = std::vector<int>{0, 1, 2, 3, 20};  // the first cap's ring, one mid vertex
+  const DualEdges dual = dual_edges(F);
+  const MaterialDeformer d(V, F, {{m - 4, m - 3}, {m - 2, m - 1}}, Eigen::VectorXd::Ones(m),
+                           RowMatrix::Ones(dual.pairs.rows(), 1), options);
+  const std::vector<Eigen::Matrix4d> T = {affine(1.2, 0.7, {0, 1, 1}, {0.5, -1, 2}),
+                                          affine(1.0, -0.4, {1, 0, 0}, {0, 0.3, 0})};
+  const Vertices X = d.deform(T, true, nullptr);
+  for (int v = 0; v < 4; ++v) EXPECT_LT((X.row(v) - image(T[0], V, v)).norm(), 1e-12);
+  EXPECT_EQ(X.row(20), V.row(20));
+  const Vertices Y = d.deform(T, false, nullptr);
+  for (int v : {0, 1, 2, 3, 20}) EXPECT_EQ(Y.row(v), V.row(v));
+  EXPECT_GT((Y - V).cwiseAbs().maxCoeff(), 0.1);  // the rest of the bar did bend
+}
+
+TEST(Deformer, RegionBoundaryVerticesOfAnAnchorFaceStayAtRest) {
+  // The region is segments 2-9 and the far cap; its boundary is ring 2 (vertices 8-11), which
+  // the anchor on segment 2 shares with the outside: that ring stays at rest, ring 3 follows.
+  Vertices V;
+  Faces F;
+  meshes::make_bar(10, 10.0, &V, &F);
+  const int m = static_cast<int>(F.rows());
+  DeformerOptions options;
+  options.region = std::vector<int>();
+  for (int f = 16; f < 80; ++f) options.region->push_back(f);
+  options.region->insert(options.region->end(), {m - 2, m - 1});
+  AnchorList anchors = {{}, {m - 2, m - 1}};
+  for (int f = 16; f < 24; ++f) anchors[0].push_back(f);
+  const DualEdges dual = dual_edges(F);
+  const MaterialDeformer d(V, F, anchors, Eigen::VectorXd::Ones(m),
+                           RowMatrix::Ones(dual.pairs.rows(), 1), options);
+  const std::vector<Eigen::Matrix4d> T = {affine(1.0, 0.5, {0, 0, 1}, {0, 0.4, 0.1}),
+                                          affine(1.0, 0.0, {1, 0, 0}, {0.2, 0, 0})};
+  const Vertices X = d.deform(T, true, nullptr);
+  for (int v = 8; v < 12; ++v) EXPECT_EQ(X.row(v), V.row(v));
+  for (int v = 12; v < 16; ++v) EXPECT_LT((X.row(v) - image(T[0], V, v)).norm(), 1e-12);
+  for (int v = 40; v < 44; ++v) EXPECT_LT((X.row(v) - image(T[1], V, v)).norm(), 1e-12);
+}
+
 TEST(Deformer, DifferentAnchorTurnsAboutOneAxisCommuteWithATurnAboutIt) {
   // Anchor transforms s_a R_x(theta_a) blend to s R_x(theta) per face, so a further scaled
   // turn G about the same axis (through the origin) gives G times the result, although the
