@@ -553,7 +553,8 @@ def compute(
     mats=None,
     progress=None,
 ) -> np.ndarray:
-    """Deformed positions (n,3) float64 for the current Empty transforms. ``budget``: "live"
+    """Deformed positions (n,3) (float64, or float32 from a method that rounds for the key)
+    for the current Empty transforms. ``budget``: "live"
     (the method's per-update iteration budget), an int, or None (run to convergence).
     ``entry`` (from :func:`entry_for`) and ``mats`` (:func:`_live_matrices`): already at hand
     in :func:`apply`. ``progress``: see :meth:`methods.Method.solve`."""

@@ -223,10 +223,9 @@ Matrix3Array MaterialDeformer::face_transforms() const {
   return out;
 }
 
-Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
-                                  bool has_translation, const Vertices* pinned_positions) const {
-  const std::lock_guard<std::mutex> lock(mutex_);
-  const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
+void MaterialDeformer::solve_region(const std::vector<Eigen::Matrix4d>& transforms,
+                                    bool has_translation, const Vertices* pinned_positions,
+                                    Vertices* sub_out) const {
   const size_t k = anchors_.size();
   if (transforms.size() != k) {
     throw std::invalid_argument("transforms: expected " + std::to_string(k) + " transforms, got " +
@@ -277,7 +276,6 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
     }
     fixed_pos.row(static_cast<Eigen::Index>(s)) = p.transpose();
   }
-  Vertices sub_out;
   // Blend (Eq. 2) block by block inside the solve, where each block is consumed right away.
   rep.solve(
       [&](int gb, int ge, double* T) {
@@ -288,15 +286,46 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
           blend_groups(logs, axis_weights_[0], gb, ge, T);
         }
       },
-      fixed_pos, &sub_out);
+      fixed_pos, sub_out);
   last_logs_ = logs;
   last_substitution_threads_ = rep.substitution_threads();
+}
+
+Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
+                                  bool has_translation, const Vertices* pinned_positions) const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
+  Vertices sub_out;
+  solve_region(transforms, has_translation, pinned_positions, &sub_out);
   if (sub_vertices_.size() == static_cast<size_t>(rest_.rows())) return sub_out;
   Vertices out = rest_;
   for (size_t s = 0; s < sub_vertices_.size(); ++s) {
     out.row(sub_vertices_[s]) = sub_out.row(static_cast<Eigen::Index>(s));
   }
   return out;
+}
+
+void MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
+                              const Vertices* pinned_positions, float* out) const {
+  const std::lock_guard<std::mutex> lock(mutex_);
+  const ParkWorkersOnExit park;
+  solve_region(transforms, has_translation, pinned_positions, &work_out_);
+  const int n = static_cast<int>(rest_.rows());
+  const bool whole = sub_vertices_.size() == static_cast<size_t>(n);
+  // Rounded on the solve's threads: the caller's next step (a float32 key) reads it at once.
+  parallel_ranges(n, 8192, 8, [&](int b, int e) {
+    const Vertices& src = whole ? work_out_ : rest_;
+    for (int v = b; v < e; ++v)
+      for (int c = 0; c < 3; ++c)
+        out[3 * static_cast<size_t>(v) + c] = static_cast<float>(src(v, c));
+  });
+  if (whole) return;
+  for (size_t s = 0; s < sub_vertices_.size(); ++s) {
+    for (int c = 0; c < 3; ++c) {
+      out[3 * static_cast<size_t>(sub_vertices_[s]) + c] =
+          static_cast<float>(work_out_(static_cast<Eigen::Index>(s), c));
+    }
+  }
 }
 
 }  // namespace matdeform

@@ -92,11 +92,13 @@ class MaterialDeformer:
             ax,
         )
 
-    def deform(self, transforms, pinned_positions=None) -> np.ndarray:
+    def deform(self, transforms, pinned_positions=None, out=None) -> np.ndarray:
         """Deformed positions (n,3) float64 for anchor transforms (k,3,3) or (k,4,4).
 
         transforms are in the mesh's coordinate frame; their linear part needs det > 0.
         pinned_positions: (len(pinned),3), only when the deformer was built with ``pinned``.
+        out: a writeable C-contiguous float32 array (n,3) to receive the result rounded to
+        float32 (what Blender stores), returned; nothing of mesh size is allocated per call.
         """
         t = as_transforms(transforms, self._k)
         pp = None
@@ -104,7 +106,22 @@ class MaterialDeformer:
             if self._pinned is None:
                 raise ValueError("pinned_positions: given, but the deformer has no pinned vertices")
             pp = as_vertices(pinned_positions, "pinned_positions", rows=len(self._pinned))
-        return self._core.deform(t, pp)
+        if out is None:
+            return self._core.deform(t, pp)
+        if not (
+            isinstance(out, np.ndarray)
+            and out.dtype == np.float32
+            and out.shape == (self._n, 3)
+            and out.flags.c_contiguous
+            and out.flags.writeable
+        ):
+            got = f"{out.dtype} {out.shape}" if isinstance(out, np.ndarray) else type(out).__name__
+            raise ValueError(
+                f"out: expected a writeable C-contiguous float32 array of shape ({self._n},3), "
+                f"got {got}"
+            )
+        self._core.deform_into(t, pp, out)
+        return out
 
     @property
     def weights(self) -> np.ndarray:

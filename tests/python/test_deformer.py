@@ -291,3 +291,77 @@ def test_face_components_of_two_tubes(small_tube):
     labels, count = md.face_components(f2)
     assert count == 2
     assert (labels[: len(f)] == 0).all() and (labels[len(f) :] == 1).all()
+
+
+def _float32_cases(small_tube):
+    """(deformer, transforms, pinned_positions) over the paths out= has to cover: follow mode,
+    rotation-only, pinned, a region, an anisotropic deformer."""
+    v, f, lo, hi = small_tube
+    rng = np.random.default_rng(11)
+    T = np.stack(
+        [affine(rotation([1, 2, 0], 0.7), [0.2, 0, 1]), affine(1.3 * rotation([0, 0, 1], -1.1))]
+    )
+    pins = np.unique(f[lo])
+    xc = v[f].mean(axis=1)[:, 0]
+    region = np.flatnonzero((xc > 1.0) & (xc < 3.0))
+    ring = lambda x0: np.flatnonzero(np.abs(xc - x0) < 0.2)  # noqa: E731
+    bend3 = rng.uniform(0.2, 1, (len(md.dual_edges(f)), 3))
+    yield md.MaterialDeformer(v, f, [lo, hi], shear=rng.uniform(0.1, 1, len(f))), T, None
+    yield md.MaterialDeformer(v, f, [lo, hi]), T[:, :3, :3].copy(), None
+    yield md.MaterialDeformer(v, f, [lo, hi], pinned=pins), T, v[pins] + 0.3
+    yield md.MaterialDeformer(v, f, [ring(1.4), ring(2.6)], region=region), T, None
+    yield md.MaterialDeformer(v, f, [lo, hi], bend=bend3), T, None
+
+
+def test_out_receives_the_float64_result_rounded_to_float32(small_tube):
+    """out= is the same solve: every coordinate is the float64 result's, rounded to float32,
+    outside-region vertices included (their rest positions)."""
+    for d, T, pp in _float32_cases(small_tube):
+        ref = d.deform(T, pinned_positions=pp)
+        out = np.full((d.num_vertices, 3), np.nan, np.float32)
+        got = d.deform(T, pinned_positions=pp, out=out)
+        assert got is out
+        assert out.tobytes() == ref.astype(np.float32).tobytes()
+        again = d.deform(T, pinned_positions=pp)  # the float64 path is unaffected by the other
+        assert again.tobytes() == ref.tobytes()
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        lambda n: np.zeros((n, 3)),  # float64
+        lambda n: np.zeros((n + 1, 3), np.float32),
+        lambda n: np.zeros((3, n), np.float32).T,  # not C-contiguous
+        lambda n: np.zeros(3 * n, np.float32),
+        lambda n: np.zeros((n, 3), np.float32).tolist(),
+    ],
+)
+def test_a_bad_out_names_itself_and_changes_nothing(small_tube, bad):
+    v, f, lo, hi = small_tube
+    d = md.MaterialDeformer(v, f, [lo, hi])
+    T = np.stack([np.eye(4), affine(rotation([1, 0, 0], 0.5))])
+    before = d.deform(T)
+    blended = d.face_transforms
+    with pytest.raises(ValueError, match=rf"out: expected .*float32 array of shape \({len(v)},3\)"):
+        d.deform(np.stack([np.eye(4), np.eye(4)]), out=bad(len(v)))
+    # the failed call solved nothing: the last solve is still T's
+    assert d.face_transforms.tobytes() == blended.tobytes()
+    assert d.deform(T).tobytes() == before.tobytes()
+
+
+def test_a_read_only_out_and_bad_transforms_leave_out_as_it_was(small_tube):
+    v, f, lo, hi = small_tube
+    d = md.MaterialDeformer(v, f, [lo, hi])
+    ro = np.zeros((len(v), 3), np.float32)
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="out: expected a writeable"):
+        d.deform(np.stack([np.eye(4), np.eye(4)]), out=ro)
+    out = np.full((len(v), 3), 7.0, np.float32)
+    bad = np.stack([np.eye(4), np.eye(4)])
+    bad[1, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="transforms"):
+        d.deform(bad, out=out)
+    assert (out == 7.0).all()
+    # the binding refuses what would be written into a converted copy
+    with pytest.raises(ValueError, match="out: expected"):
+        d._core.deform_into(np.stack([np.eye(4), np.eye(4)]), None, np.zeros((len(v), 3)))

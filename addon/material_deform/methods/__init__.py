@@ -16,7 +16,8 @@ import numpy as np
 
 @dataclass
 class Result:
-    """What :meth:`Method.solve` returns: positions (n_c,3) of the compacted mesh, and whether
+    """What :meth:`Method.solve` returns: positions (n_c,3) of the compacted mesh (float64, or
+    float32 where the solver rounds for the key itself), and whether
     the solve is final. An iterative method that stopped on its per-update budget before it
     converged says ``done=False``; the session then keeps updating until it is."""
 

@@ -53,6 +53,10 @@ class MaterialDeformer {
   // block is used. pinned_positions: (|pinned|,3) or nullptr. Returns (n,3).
   Vertices deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
                   const Vertices* pinned_positions) const;
+  // The same, rounded to float32 into out: n rows of 3 floats (C order), what a shape key or a
+  // point cache stores; no (n,3) result is allocated per call.
+  void deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
+              const Vertices* pinned_positions, float* out) const;
 
   // (m,k) blending weights on the full mesh (mean of the axes when anisotropic; zero rows
   // outside the region).
@@ -63,6 +67,7 @@ class MaterialDeformer {
   Matrix3Array face_transforms() const;
   int num_anchors() const { return static_cast<int>(anchors_.size()); }
   bool anisotropic() const { return axis_weights_.size() == 3; }
+  int num_vertices() const { return static_cast<int>(rest_.rows()); }
   int num_region_vertices() const { return static_cast<int>(sub_vertices_.size()); }
   // Threads the last deform()'s back-substitution ran on (1 = serial, 0 before the first call).
   // For tests that must reach the parallel path.
@@ -70,6 +75,9 @@ class MaterialDeformer {
 
  private:
   const PoissonRepositioner& repositioner(bool follow) const;
+  // deform() on the region, under mutex_: sub_out gets (region vertices,3).
+  void solve_region(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
+                    const Vertices* pinned_positions, Vertices* sub_out) const;
   std::vector<int> fixed_set(const std::vector<int>& primary) const;
 
   Vertices rest_;                           // full mesh
@@ -97,6 +105,7 @@ class MaterialDeformer {
   // per-pose path never stores all m transforms.
   mutable std::vector<TransformLog> last_logs_;
   mutable int last_substitution_threads_ = 0;
+  mutable Vertices work_out_;  // the float32 deform()'s region result, kept between calls
   // Guards free_, last_logs_ and the repositioners' workspaces.
   mutable std::mutex mutex_;
 };
