@@ -19,6 +19,9 @@ does: "shift" (default: the top Empty moves, the lower bound), "free" (every Emp
 and moves, as an artist poses a character) or "scaled" (as "free", and one Empty is scaled by
 (1.3, 1, 0.8) along its own axes). Laplacian Deform gets the same rings, one Hook per ring.
 
+--props N puts N more Empties in the scene first (a dressed set): Blender's own cost of an
+update grows with the number of objects.
+
 --floor adds a third block to the loop: the same MD updates with deform() answering at once
 (a stored result), i.e. everything but the solve: Laplacian / that is the best ratio any solver
 could reach in this add-on.
@@ -235,7 +238,17 @@ def timed_block(cycle, count, i):
     return times, i
 
 
-def bench_size(target_faces, reps, budget_s, k=2, motion="shift", floor=False):
+def add_props(count):
+    """count plain Empties in the scene (a set dressed with props): Blender's own update cost
+    grows with the number of objects, for Laplacian Deform as for the add-on."""
+    coll = bpy.context.scene.collection
+    for i in range(count):
+        prop = bpy.data.objects.new(f"Prop{i}", None)
+        prop.location = (10.0 + i % 50, i // 50, 0.0)
+        coll.objects.link(prop)
+
+
+def bench_size(target_faces, reps, budget_s, k=2, motion="shift", floor=False, props=0):
     from material_deform import session
 
     rings, sides = tube_dims(target_faces)
@@ -243,6 +256,7 @@ def bench_size(target_faces, reps, budget_s, k=2, motion="shift", floor=False):
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
 
+    add_props(props)
     obj = tube("MD", rings, sides)
     n_tris = 2 * len(obj.data.polygons)
     empties, md_bind = setup_md(obj, sides, ring_rows, k)
@@ -382,6 +396,9 @@ def main():
         action="store_true",
         help="also time MD updates whose solve answers instantly (the add-on's and Blender's part)",
     )
+    ap.add_argument(
+        "--props", type=int, default=0, help="this many more Empties in the scene (a dressed set)"
+    )
     args = ap.parse_args(argv)
     spinners = keep_cpus_awake() if args.keep_cpus_awake else []
 
@@ -390,7 +407,7 @@ def main():
     addon_utils.enable("material_deform", default_set=True)
     try:
         rows = [
-            bench_size(s, args.reps, args.budget, args.anchors, args.motion, args.floor)
+            bench_size(s, args.reps, args.budget, args.anchors, args.motion, args.floor, args.props)
             for s in args.sizes
         ]
     finally:
@@ -401,7 +418,8 @@ def main():
         f"Blender {bpy.app.version_string}, Python {platform.python_version()}, "
         f"{platform.machine()}, {os.cpu_count()} CPU(s)"
         + (", CPUs kept awake by nice-19 busy loops" if spinners else "")
-        + f"; {args.anchors} anchors, motion '{args.motion}'",
+        + f"; {args.anchors} anchors, motion '{args.motion}'"
+        + (f"; {args.props} more Empties in the scene" if args.props else ""),
         "",
         "| triangles | vertices | MD bind (s) | MD solve (ms) | MD apply (ms) | MD full update "
         "(ms) | Laplacian bind (s) | Laplacian update (ms) | Laplacian / MD (full update) "
