@@ -1,5 +1,7 @@
 """Paint -> attributes, anchors, bind, live deformation, reset, save/reload, polygons."""
 
+import ctypes
+
 import bpy
 import numpy as np
 import pytest
@@ -123,6 +125,40 @@ def test_bind_then_move_empty_anchor_follows_exactly():
     assert np.all(np.isfinite(x))
     # what Blender shows is the shape key result
     np.testing.assert_allclose(evaluated(obj), x, atol=1e-6)
+
+
+def test_each_live_update_reevaluates_the_mesh_with_the_lightest_tag(capfd):
+    """Every live update must reach what Blender shows: after each single scene update the
+    evaluated mesh (here below a modifier) is the new key. And on Blender 4.1+, where the bulk
+    key write tags the Key itself, the add-on adds no legacy update_tag(): that tag makes
+    Blender flush visibility flags over the whole depsgraph, which costs milliseconds per
+    update in scenes with many objects (docs/performance.md)."""
+    obj, top, _ = _bound_bar()
+    mod = obj.modifiers.new("Shift", "DISPLACE")
+    mod.strength, mod.mid_level = 0.25, 0.0  # no texture: every vertex moves along its normal
+    mod.direction = "X"  # a constant shift, so the evaluated mesh can be compared exactly
+    update()
+    ctypes.CDLL(None).fflush(None)
+    bpy.app.debug_depsgraph_tag = True
+    try:
+        capfd.readouterr()
+        for i in range(3):
+            top.empty.location.x += 0.2
+            top.empty.rotation_euler.y = 0.3 * (i + 1)
+            update()
+            x = output(obj)
+            got = evaluated(obj)
+            np.testing.assert_allclose(got[:, 1:], x[:, 1:], atol=1e-6)
+            np.testing.assert_allclose(got[:, 0], x[:, 0] + 0.25, atol=1e-6)
+        ctypes.CDLL(None).fflush(None)  # Blender prints the tags with C stdio, maybe buffered
+        tags = capfd.readouterr().out
+    finally:
+        bpy.app.debug_depsgraph_tag = False
+    assert np.abs(x - rest(obj)).max() > 0.1
+    key_tags = [ln for ln in tags.splitlines() if "id=KE" in ln]
+    assert key_tags, tags  # the writes did tag the Key
+    if bpy.app.version >= (4, 1, 0):
+        assert not [ln for ln in key_tags if "LEGACY_0" in ln], key_tags
 
 
 def test_live_updates_call_no_lapack(monkeypatch):
