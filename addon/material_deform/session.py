@@ -416,11 +416,11 @@ def full_check(obj, scene) -> str:
     return ""
 
 
-def _anchor_empties(obj, scene):
+def _anchor_empties(obj, scene, members=None):
     s = settings(obj)
     out = []
     for anc in s.anchors:
-        if anc.empty is None or not bridge.object_in_scene(anc.empty, scene):
+        if anc.empty is None or not bridge.object_in_scene(anc.empty, scene, members):
             raise BindError(
                 f"Anchor '{anc.name}' has no Empty (removed or never assigned): assign one in "
                 "the Anchors list, then Bind"
@@ -431,12 +431,14 @@ def _anchor_empties(obj, scene):
 
 def _live_matrices(obj, depsgraph) -> tuple:
     """The world matrices one update needs, read once (each RNA read costs ~3.5 us): the
-    object's, one per anchor (None without an Empty or when not evaluated) and the axes
-    Empty's."""
+    object's, one per anchor (None without an Empty or when not evaluated; a (k,4,4) array
+    when every anchor has one and no depsgraph is given) and the axes Empty's."""
     s = settings(obj)
-    anchors = [
-        None if a.empty is None else bridge.world_matrix(a.empty, depsgraph) for a in s.anchors
-    ]
+    empties = [a.empty for a in s.anchors]
+    if depsgraph is None and None not in empties:
+        anchors = bridge.world_matrices(empties)
+    else:
+        anchors = [None if e is None else bridge.world_matrix(e, depsgraph) for e in empties]
     axes = None if s.axes_empty is None else bridge.world_matrix(s.axes_empty, depsgraph)
     return bridge.world_matrix(obj, depsgraph), anchors, axes
 
@@ -511,13 +513,16 @@ def _bind_matrices(obj, entry: Entry) -> tuple:
     return got
 
 
-def transforms_now(obj, entry: Entry, scene, depsgraph=None, mats=None) -> np.ndarray | None:
+def transforms_now(
+    obj, entry: Entry, scene, depsgraph=None, mats=None, members=None
+) -> np.ndarray | None:
     """(k,4,4) motion of every anchor since bind in the mesh's local space, None at the bind
     pose exactly. Anchor faces follow their Empty in world space: for a vertex at local x,
     ``inv(M_obj) M_now inv(M_bind) M_obj_bind x``, right also for Empties parented to the mesh
     and for an object moved or animated since bind. ``mats``: this update's
-    :func:`_live_matrices`, if already read."""
-    ancs = _anchor_empties(obj, scene)
+    :func:`_live_matrices`, if already read; ``members``: the scene's objects as a set (see
+    :func:`bridge.object_in_scene`)."""
+    ancs = _anchor_empties(obj, scene, members)
     if len(ancs) != entry.n_anchors:
         raise BindError("Anchors changed since bind - click Rebind")
     m_obj, mats, _ = _live_matrices(obj, depsgraph) if mats is None else mats
@@ -529,7 +534,7 @@ def transforms_now(obj, entry: Entry, scene, depsgraph=None, mats=None) -> np.nd
             )
     if m_obj is None:
         raise BindError("Object is not evaluated here")
-    now = np.stack(mats)
+    now = mats if isinstance(mats, np.ndarray) else np.stack(mats)
     bind_m, m_obj_bind, bind_bytes = _bind_matrices(obj, entry)
     if m_obj_bind is None:  # as if the object never moved
         m_obj_bind = m_obj
@@ -552,17 +557,19 @@ def compute(
     entry=None,
     mats=None,
     progress=None,
+    members=None,
 ) -> np.ndarray:
     """Deformed positions (n,3) (float64, or float32 from a method that rounds for the key)
     for the current Empty transforms. ``budget``: "live"
     (the method's per-update iteration budget), an int, or None (run to convergence).
     ``entry`` (from :func:`entry_for`) and ``mats`` (:func:`_live_matrices`): already at hand
-    in :func:`apply`. ``progress``: see :meth:`methods.Method.solve`."""
+    in :func:`apply`. ``progress``: see :meth:`methods.Method.solve`. ``members``: see
+    :func:`transforms_now`."""
     if entry is None:
         entry = entry_for(obj, scene)
     key = obj.as_pointer()
     method = _live_checks(obj, entry, depsgraph)
-    t = transforms_now(obj, entry, scene, depsgraph, mats)
+    t = transforms_now(obj, entry, scene, depsgraph, mats, members)
     if t is None:
         # the bind pose is the rest shape exactly, as Bind writes it (the solver would add
         # round-off): re-evaluating it after undo or reloading leaves the key as it was
@@ -629,7 +636,7 @@ def _record(obj, entry: Entry, mkey: bytes, settled: bool) -> str:
     return f"{digest}:{int(settled)}"
 
 
-def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
+def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats, members=None) -> bool:
     """A fresh cache entry of an iterative method (the file was loaded, or undo restored the
     key): True if the key holds the settled result of this very pose, which is then kept bit
     for bit (solving again could reach another fixed point). If it holds an unsettled one, the
@@ -640,7 +647,7 @@ def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
     if not held or held.rsplit(":", 1)[0] != _record(obj, entry, mkey, True).rsplit(":", 1)[0]:
         return False
     method = _live_checks(obj, entry, depsgraph)
-    transforms_now(obj, entry, scene, depsgraph, mats)  # what a solve would refuse: raises
+    transforms_now(obj, entry, scene, depsgraph, mats, members)  # what a solve refuses: raises
     if held.endswith(":1"):
         entry.last_key = mkey
         _unsettled.discard(obj.as_pointer())
@@ -652,10 +659,13 @@ def _resume(obj, entry: Entry, scene, kb, mkey: bytes, depsgraph, mats) -> bool:
     return False
 
 
-def apply(obj, scene, depsgraph=None, force: bool = False, budget="live", progress=None) -> bool:
+def apply(
+    obj, scene, depsgraph=None, force: bool = False, budget="live", progress=None, members=None
+) -> bool:
     """Write the deformation into the output shape key if any driver moved (or the last solve
     had not converged yet). True if written. Never writes a non-finite result (BindError).
-    ``progress``: see :meth:`methods.Method.solve`."""
+    ``progress``: see :meth:`methods.Method.solve`. ``members``: the scene's objects as a set,
+    if at hand (:func:`live_update`)."""
     entry = entry_for(obj, scene)
     mats = _live_matrices(obj, depsgraph)
     mkey = _matrix_key(obj, depsgraph, mats)
@@ -666,9 +676,9 @@ def apply(obj, scene, depsgraph=None, force: bool = False, budget="live", progre
     if force:
         entry.extra.pop("settings_sig", None)  # Update, Settle, a setting's callback
     elif entry.last_key is None and not entry.state:
-        if _resume(obj, entry, scene, kb, mkey, depsgraph, mats):
+        if _resume(obj, entry, scene, kb, mkey, depsgraph, mats, members):
             return False
-    x = compute(obj, scene, depsgraph, budget, entry, mats, progress)
+    x = compute(obj, scene, depsgraph, budget, entry, mats, progress, members)
     bridge.write_key(obj, kb, check_finite(obj, entry, x))
     bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
     entry.last_key = mkey
@@ -683,8 +693,11 @@ def check_finite(obj, entry: Entry, x: np.ndarray) -> np.ndarray:
     unless every coordinate of it is finite (a float64 beyond float32's range becomes inf).
     The method's state is dropped then: an iterative method must not continue from that
     iterate."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        x32 = np.ascontiguousarray(x, dtype=np.float32)
+    if x.dtype == np.float32:  # rounded by the solver already (errstate costs ~10 us)
+        x32 = np.ascontiguousarray(x)
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            x32 = np.ascontiguousarray(x, dtype=np.float32)
     flat = x32.reshape(-1)
     # Two reductions on the float32 copy the key write needs anyway (~10 us at 50k faces);
     # NaN propagates through both and fails the comparison. Not a dot product: numpy hands one
@@ -735,12 +748,16 @@ def live_update(scene, depsgraph=None, budget="live") -> None:
     stale reasons (shown in the panel), never raised into Blender. ``budget``: "live" (the
     methods' per-update budgets) or None: frames of a render, each solved to convergence as
     Bake solves it, even where the key already holds a (live) result of that pose."""
-    for obj in scene.objects:
+    objs = scene.objects[:]  # one RNA pass, also the membership test of the anchor Empties
+    members = None
+    for obj in objs:
         if obj.type != "MESH":
             continue
         s = settings(obj)
         if not (s.bound and s.live):
             continue
+        if members is None:
+            members = set(objs)
         key = obj.as_pointer()
         mode, prev = obj.mode, _last_mode.get(key, "OBJECT")
         _last_mode[key] = mode
@@ -749,7 +766,9 @@ def live_update(scene, depsgraph=None, budget="live") -> None:
         if prev != "OBJECT" and full_check(obj, scene):
             continue
         try:
-            wrote = apply(obj, scene, depsgraph, force=budget is None, budget=budget)
+            wrote = apply(
+                obj, scene, depsgraph, force=budget is None, budget=budget, members=members
+            )
         except Exception as exc:  # a handler must never take Blender down
             _unsettled.discard(key)
             msg = str(exc) if isinstance(exc, BindError) else f"Update failed: {exc}"

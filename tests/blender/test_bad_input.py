@@ -91,6 +91,31 @@ def test_empty_unlinked_from_scene():
     expect_error(bpy.ops.object.material_deform_bind, "not in the scene")
 
 
+def test_empty_unlinked_after_bind_stops_live_updates_until_linked_again():
+    """The live path checks the anchor Empties against one set of the scene's objects (not a
+    name lookup each): an Empty taken out of the scene, even one still in another scene, stops
+    the updates with a reason, and putting it back resumes them."""
+    from material_deform import session
+
+    obj, top, result = _bound_and_moved()
+    empty = top.empty
+    other = bpy.data.scenes.new("Elsewhere")
+    other.collection.objects.link(empty)
+    for c in list(empty.users_collection):
+        if c != other.collection:
+            c.objects.unlink(empty)
+    obj.location.z += 0.1  # an update for the mesh that must not use the Empty
+    update()
+    np.testing.assert_array_equal(output(obj), result)  # nothing written
+    assert top.name in session.stale_reason(obj)
+    bpy.context.scene.collection.objects.link(empty)
+    empty.location.x += 0.5
+    update()
+    assert np.abs(output(obj) - result).max() > 0.2  # live again, the anchor moved on
+    assert session.stale_reason(obj) == ""
+    bpy.data.scenes.remove(other)
+
+
 def test_mesh_edited_after_bind_needs_rebind():
     obj = tube()
     top, _ = two_end_anchors(obj)
