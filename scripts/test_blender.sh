@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
-# Run the add-on test suite inside Debian's Blender (3.4), with the PyPI bpy module (4.5 LTS, plus
-# 5.0 if MD_BPY5=1) and inside Debian 13's Blender 4.3 in a chroot (as root; MD_DEBIAN13=0 skips
-# it), installing whatever is missing; then, as root, the shipped extension zip in a Debian 12
-# chroot without SuiteSparse, BLAS or OpenMP (MD_NOSUITESPARSE=0 skips it). Exit status: non-zero
-# if any run fails.
+# Run the add-on test suite inside Debian's Blender (3.4), with the PyPI bpy module (4.5 LTS; 4.2.0,
+# the oldest Blender the extension supports, MD_BPY42=0 skips it; plus 5.0 if MD_BPY5=1) and
+# inside Debian 13's Blender 4.3 in a chroot (as root; MD_DEBIAN13=0 skips it), installing
+# whatever is missing; then, as root, the shipped extension zip in a Debian 12 chroot without
+# SuiteSparse, BLAS or OpenMP (MD_NOSUITESPARSE=0 skips it). Exit status: non-zero if any run
+# fails.
 #   scripts/test_blender.sh [extra pytest args]
 set -uo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -43,6 +44,12 @@ run() {  # run LABEL CMD...
 run "Blender $(blender --version 2>/dev/null | head -n1 | cut -d' ' -f2) (Debian)" \
   blender -b --factory-startup --python-exit-code 1 --python tests/blender/run.py -- -q "$@"
 run "bpy $BPY_VERSION (PyPI)" .venv-bpy/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+# blender_version_min of the extension: Blender versions differ in what they tag on a bulk write
+# (4.2 tags nothing, 4.3+ the Key), and only a run there shows that the live updates still land
+if [[ "${MD_BPY42:-1}" == 1 ]]; then
+  ensure_bpy_venv .venv-bpy42 4.2.0 || exit 2
+  run "bpy 4.2.0 (PyPI)" .venv-bpy42/bin/python -m pytest -q -p no:cacheprovider tests/blender "$@"
+fi
 # A real Blender >= 4.2 executable: Debian 13's 4.3 in a chroot (also runs the extension tool)
 if [[ "${MD_DEBIAN13:-1}" == 1 ]]; then
   run "Blender 4.3 (Debian 13 chroot)" bash scripts/test_blender_debian13.sh "$@"

@@ -586,7 +586,7 @@ def is_reference_key(obj, kb) -> bool:
 
 
 def write_key(obj, kb, positions) -> None:
-    """Hot path: one bulk copy into the shape key, and the Key tagged for re-evaluation.
+    """Hot path: one bulk copy into the shape key, then the Key tagged for re-evaluation.
 
     ``KeyBlock.data.foreach_set`` goes item by item (~8 ms for 25k vertices), too slow for
     live use. Blender 4.1+ has ``KeyBlock.points`` with a bulk path; older versions get a
@@ -596,18 +596,15 @@ def write_key(obj, kb, positions) -> None:
     flat = np.ascontiguousarray(positions, dtype=np.float32).ravel()
     points = getattr(kb, "points", None)
     if points is not None:
-        # The bulk write tags the Key itself (copy-on-evaluation + parameters), which is enough
-        # to re-evaluate the geometry. No update_tag() on top: that legacy tag also makes
-        # Blender flush visibility over the whole depsgraph, +1.5 ms per live update with
-        # 1000 other objects in the scene (docs/performance.md, session 14).
         points.foreach_set("co", flat)
-        return
-    if not _raw_copy_into_key(kb, flat):
+    elif not _raw_copy_into_key(kb, flat):
         kb.data.foreach_set("co", flat)
-    # Blender < 4.1 tags nothing on these writes. Tagging only the Key re-evaluates the
-    # object's geometry without a copy-on-write of the whole mesh (~0.7 ms less per update at
-    # 25k vertices on Blender 3.4).
-    obj.data.shape_keys.update_tag()
+    # The RNA update of the points: a copy-on-write tag of the Key alone, which re-evaluates the
+    # geometry (the bulk write does the same itself from Blender 4.3 on; before, nothing does).
+    # Not Key.update_tag(): that legacy tag also makes Blender flush visibility flags over the
+    # whole depsgraph, +1 to +1.5 ms per update with 1000 other objects in the scene
+    # (docs/performance.md, session 14). Also spares a copy-on-write of the whole mesh.
+    kb.data.update()
 
 
 def _key_array(kb, size: int) -> int:

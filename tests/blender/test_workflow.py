@@ -129,10 +129,10 @@ def test_bind_then_move_empty_anchor_follows_exactly():
 
 def test_each_live_update_reevaluates_the_mesh_with_the_lightest_tag(capfd):
     """Every live update must reach what Blender shows: after each single scene update the
-    evaluated mesh (here below a modifier) is the new key. And on Blender 4.1+, where the bulk
-    key write tags the Key itself, the add-on adds no legacy update_tag(): that tag makes
-    Blender flush visibility flags over the whole depsgraph, which costs milliseconds per
-    update in scenes with many objects (docs/performance.md)."""
+    evaluated mesh (here below a modifier) is the new key. And the Key gets the light tag (its
+    points' RNA update), never the legacy update_tag(): that one makes Blender flush visibility
+    flags over the whole depsgraph, which costs milliseconds per update in scenes with many
+    objects (docs/performance.md)."""
     obj, top, _ = _bound_bar()
     mod = obj.modifiers.new("Shift", "DISPLACE")
     mod.strength, mod.mid_level = 0.25, 0.0  # no texture: every vertex moves along its normal
@@ -157,8 +157,7 @@ def test_each_live_update_reevaluates_the_mesh_with_the_lightest_tag(capfd):
     assert np.abs(x - rest(obj)).max() > 0.1
     key_tags = [ln for ln in tags.splitlines() if "id=KE" in ln]
     assert key_tags, tags  # the writes did tag the Key
-    if bpy.app.version >= (4, 1, 0):
-        assert not [ln for ln in key_tags if "LEGACY_0" in ln], key_tags
+    assert not [ln for ln in key_tags if "LEGACY_0" in ln], key_tags
 
 
 def test_live_updates_call_no_lapack(monkeypatch):
