@@ -332,7 +332,7 @@ def bench_size(target_faces, reps, budget_s, k=2, motion="shift", floor=False, p
     stored32 = np.ascontiguousarray(stored, dtype=np.float32)
 
     def key_write_only(_scene, _depsgraph=None):
-        bridge.write_key(obj, kb, stored32)  # the bulk write and, before 4.1, the Key tag
+        bridge.write_key(obj, kb, stored32)  # the add-on's own bulk write and tag
 
     def key_only_block(i):
         """A block of MD updates whose handler only writes the stored result into the key."""
