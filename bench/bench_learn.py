@@ -4,7 +4,7 @@ The mesh is three side-by-side copies of the cat (43,230 faces); the 10 poses ar
 cat poses plus a rigidly moved copy of pose 1, applied to all three copies. Reports the median
 wall time of repeated ``learn_stiffness`` calls (input validation included).
 
-    python bench/bench_learn.py [--data ../shared/data/cat-poses] [--repeat 9]
+    python bench/bench_learn.py [--data data/cat-poses] [--repeat 9]
 """
 
 from __future__ import annotations
@@ -31,15 +31,15 @@ def main() -> None:
     ap.add_argument(
         "--data",
         type=Path,
-        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+        default=Path(__file__).resolve().parents[1] / "data" / "cat-poses",
     )
     ap.add_argument("--repeat", type=int, default=9)
     ap.add_argument("--copies", type=int, default=3)
     ap.add_argument("--threads", type=int, nargs="+", default=[1, 2], help="core thread counts")
     args = ap.parse_args()
 
-    v0, f0 = md.read_obj(args.data / "cat-reference.obj")
-    poses0 = [md.read_obj(args.data / f"cat-0{k}.obj")[0] for k in range(1, 10)]
+    v0, f0 = np.load(args.data / "reference.npy"), np.load(args.data / "faces.npy")
+    poses0 = list(np.load(args.data / "poses.npy"))
     c, s = np.cos(0.7), np.sin(0.7)
     turn = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
     poses0.append(poses0[0] @ turn.T + [0.1, 0.2, 0.3])

@@ -110,7 +110,7 @@ def tube_case(faces_target):
     return v, f, handles
 
 
-CAT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses"
+CAT = Path(__file__).resolve().parents[1] / "data" / "cat-poses"
 
 
 def cat_case():
@@ -207,9 +207,6 @@ def main():
     for case in args.cases:
         coarse = 1000 if case.endswith("multires") else None
         if case.startswith("cat"):
-            if not CAT.exists():
-                print(f"| {case} | skipped: {CAT} not found |")
-                continue
             v, f, ex, handles = cat_case()
         else:
             v, f, handles = tube_case(17_000 if case.startswith("17k") else 140_000)

@@ -1,6 +1,6 @@
 """Pyramid coordinates: time to converge and sweeps per second at three sizes.
 
-Meshes (all from shared/data/cat-poses, poses with the same connectivity):
+Meshes (all from data/cat-poses, poses with the same connectivity):
   * cat 5k: the reference cat decimated to ~5k faces (fast-simplification, QEM), 9 control
     vertices (4 feet, head tip, tail tip, and three along the back) moved to their positions in
     each of the nine cat poses (as the paper's walking camel: 9 control vertices);
@@ -30,7 +30,7 @@ from bench_quality import Bench, anchor_points
 
 import matdeform as md
 
-DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses"
+DATA = Path(__file__).resolve().parents[1] / "data" / "cat-poses"
 TARGET_MS = {"cat 5k": 50.0, "cat 14k": 200.0, "cat 58k": 1000.0}
 TOL = 1e-5
 

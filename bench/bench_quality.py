@@ -112,8 +112,8 @@ def rms_error(x: np.ndarray, target: np.ndarray, diag: float) -> float:
 
 class Bench:
     def __init__(self, data: Path):
-        self.rest, self.faces = md.read_obj(data / "cat-reference.obj")
-        self.poses = [md.read_obj(data / f"cat-0{k}.obj")[0] for k in range(1, 10)]
+        self.rest, self.faces = np.load(data / "reference.npy"), np.load(data / "faces.npy")
+        self.poses = list(np.load(data / "poses.npy"))
         self.diag = float(np.linalg.norm(self.rest.max(0) - self.rest.min(0)))
         self.points = anchor_points(self.rest)
         self.region_verts, self.region_faces = anchor_regions(self.rest, self.faces, self.points)
@@ -267,7 +267,7 @@ def main() -> None:
     ap.add_argument(
         "--data",
         type=Path,
-        default=Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses",
+        default=Path(__file__).resolve().parents[1] / "data" / "cat-poses",
     )
     ap.add_argument("--no-blender", action="store_true")
     ap.add_argument("--explore", action="store_true", help="also run the learning variants")

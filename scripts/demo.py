@@ -5,7 +5,7 @@ Writes OBJ files (rest, uniform, material-aware) and a PNG picture into out/ (or
 Paper Fig. 1/10: a tentacle whose stiffness grows with its girth curls into a spiral when its
 tip is rotated, while uniform material gives a plain arc. Fig. 4: a bar with a stiff middle.
 Also poses meshes with a few control vertices by pyramid coordinates (demo_pyramid.png): a bar,
-and the cat from shared/data/cat-poses when it is there.
+and the cat (data/cat-poses).
 Edge-based (docs/edge.md): a sheet pinned at two corners hanging under gravity, stretch weight
 lambda from membrane to cloth (demo_edge_sheet.png), and the paper's Fig. 2a/2c plane
 (demo_edge_plane.png).
@@ -139,7 +139,7 @@ def draw(ax, v, f, stiff_v, title, view=(90, -90), vmax=None):
     ax.set_title(title, fontsize=10)
 
 
-CAT = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "cat-poses"
+CAT = Path(__file__).resolve().parents[1] / "data" / "cat-poses"
 
 
 def pyramid_bar():
@@ -162,8 +162,8 @@ def pyramid_cat():
     sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
     from bench_pyramid import nine_controls
 
-    v, f = md.read_obj(CAT / "cat-reference.obj")
-    pose = md.read_obj(CAT / "cat-03.obj")[0]
+    v, f = np.load(CAT / "reference.npy"), np.load(CAT / "faces.npy")
+    pose = np.load(CAT / "poses.npy")[2]  # pose 3
     ctrl = nine_controls(v)
     X = md.PyramidDeformer(v, f, ctrl).deform(pose[ctrl], tol=1e-7)
     return v, f, ctrl, X
@@ -176,9 +176,7 @@ def draw_posed(ax, v, f, ctrl, title, view):
 
 
 def pyramid_figure(out: Path) -> None:
-    cases = [("bar", pyramid_bar, (90, -90), [0, 1, 2])]
-    if (CAT / "cat-reference.obj").exists():
-        cases.append(("cat", pyramid_cat, (12, -65), [2, 0, 1]))  # the cat is y-up
+    cases = [("bar", pyramid_bar, (90, -90), [0, 1, 2]), ("cat", pyramid_cat, (12, -65), [2, 0, 1])]
     fig = plt.figure(figsize=(10, 4.5 * len(cases)))
     for row, (name, fn, view, axes) in enumerate(cases):
         v, f, ctrl, X = fn()

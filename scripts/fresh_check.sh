@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Proves that the README's two commands work from scratch, as on a new machine:
-#   1. clones HEAD (committed work only) into a new temporary folder, next to a link to the
-#      shared data folder (../shared) that the tests and benchmarks read;
+#   1. clones HEAD (committed work only) into a new temporary folder with nothing beside it (no
+#      ../shared: everything the tests, demo and benchmarks read is in the repository);
 #   2. as root, first removes the Debian Python packages the scripts install for Debian's Blender
 #      (python3-pytest, python3-numpy), so that their install steps must really run;
 #   3. runs ./scripts/demo.sh, checks that it wrote out/demo.blend and PNGs, then runs
@@ -13,7 +13,6 @@ ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 WORK="$(mktemp -d "${TMPDIR:-/tmp}/md-fresh.XXXXXX")"
 cleanup() { [[ "${MD_FRESH_KEEP:-0}" == 1 ]] || rm -rf "$WORK"; }
 trap cleanup EXIT
-[[ -d "$ROOT/../shared" ]] && ln -s "$(cd "$ROOT/../shared" && pwd)" "$WORK/shared"
 git clone -q "$ROOT" "$WORK/main"
 cd "$WORK/main"
 echo "[fresh] $(git log -1 --format='%h %s') in $WORK/main"

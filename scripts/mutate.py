@@ -457,11 +457,6 @@ class Scratch:
                 path = Path(top) / name
                 if path.relative_to(self.repo).as_posix() not in wanted:
                     path.unlink()  # gone from the tree, or the extension link (made anew)
-        # Tests find the cat at <repo>/../shared, as in the real checkout.
-        shared = ROOT.parent / "shared"
-        link = self.base / "shared"
-        if shared.exists() and not link.exists():
-            link.symlink_to(shared)
 
     def configure(self):
         if (self.build / "build.ninja").exists():

@@ -51,9 +51,9 @@ std::vector<Mesh> catalogue() {
   out.push_back(m);
   m.name = "cat";
   m.trials = 2;
-  if (permutation::read_obj(MATDEFORM_SHARED_DATA "/cat-poses/cat-reference.obj", &m.V, &m.F)) {
-    out.push_back(m);
-  }
+  m.V = permutation::read_npy<Vertices>(MATDEFORM_DATA "/cat-poses/reference.npy", "<f8");
+  m.F = permutation::read_npy<Faces>(MATDEFORM_DATA "/cat-poses/faces.npy", "<i4");
+  out.push_back(m);
   return out;
 }
 

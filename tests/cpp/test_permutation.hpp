@@ -6,11 +6,11 @@
 
 #include <Eigen/Core>
 #include <algorithm>
+#include <cstdio>
 #include <fstream>
 #include <map>
 #include <numeric>
 #include <random>
-#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <utility>
@@ -94,33 +94,33 @@ inline double max_permuted_error(const Vertices& X, const Vertices& Xp, const Re
   return err / std::max(diag, 1e-300);
 }
 
-// Vertices and triangles of a Wavefront OBJ ("v x y z", "f a/.. b/.. c/.." fan-triangulated).
-inline bool read_obj(const std::string& path, Vertices* V, Faces* F) {
-  std::ifstream in(path);
-  if (!in) return false;
-  std::vector<double> xyz;
-  std::vector<int> tri;
-  std::string line;
-  while (std::getline(in, line)) {
-    std::istringstream ss(line);
-    std::string tag;
-    ss >> tag;
-    if (tag == "v") {
-      double x, y, z;
-      ss >> x >> y >> z;
-      xyz.insert(xyz.end(), {x, y, z});
-    } else if (tag == "f") {
-      std::vector<int> idx;
-      for (std::string tok; ss >> tok;) idx.push_back(std::stoi(tok.substr(0, tok.find('/'))) - 1);
-      for (size_t j = 1; j + 1 < idx.size(); ++j)
-        tri.insert(tri.end(), {idx[0], idx[j], idx[j + 1]});
-    }
-  }
-  V->resize(static_cast<Eigen::Index>(xyz.size() / 3), 3);
-  for (Eigen::Index i = 0; i < V->size(); ++i) V->data()[i] = xyz[static_cast<size_t>(i)];
-  F->resize(static_cast<Eigen::Index>(tri.size() / 3), 3);
-  for (Eigen::Index i = 0; i < F->size(); ++i) F->data()[i] = tri[static_cast<size_t>(i)];
-  return true;
+// One C-ordered little-endian .npy array of 2 dimensions ("<f8" or "<i4", as numpy's np.save
+// writes them): the cat under data/cat-poses. Throws when the file is missing or of another kind.
+template <typename Matrix>
+Matrix read_npy(const std::string& path, const std::string& descr) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) throw std::runtime_error("cannot open " + path);
+  char magic[8];
+  in.read(magic, 8);
+  if (!in || std::string(magic, 6) != "\x93NUMPY") throw std::runtime_error(path + ": not .npy");
+  unsigned char len[2];
+  in.read(reinterpret_cast<char*>(len), 2);
+  std::string header(static_cast<size_t>(len[0] | (len[1] << 8)), ' ');
+  in.read(header.data(), static_cast<std::streamsize>(header.size()));
+  if (header.find("'descr': '" + descr + "'") == std::string::npos ||
+      header.find("'fortran_order': False") == std::string::npos)
+    throw std::runtime_error(path + ": expected C-ordered " + descr);
+  const size_t open = header.find("'shape': (");
+  long rows = 0, cols = 0;
+  if (open == std::string::npos ||
+      std::sscanf(header.c_str() + open + 10, "%ld, %ld)", &rows, &cols) != 2)
+    throw std::runtime_error(path + ": expected a 2-dimensional array");
+  Eigen::Matrix<typename Matrix::Scalar, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor> m(rows,
+                                                                                            cols);
+  in.read(reinterpret_cast<char*>(m.data()),
+          static_cast<std::streamsize>(m.size() * sizeof(typename Matrix::Scalar)));
+  if (!in) throw std::runtime_error(path + ": truncated");
+  return m;
 }
 
 }  // namespace matdeform::permutation

@@ -24,7 +24,7 @@ import numpy as np
 import matdeform as md
 from matdeform import shapes
 
-CAT = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "cat-poses"
+CAT = Path(__file__).resolve().parents[2] / "data" / "cat-poses"
 
 
 class Relabelling:
@@ -150,7 +150,6 @@ def catalogue(include_cat=True):
         ("grid", *grid(8, 8)),
         ("tube", *shapes.tube(length=6.0, radius=0.7, n_around=8, n_along=12)),
     ]
-    cat = CAT / "cat-reference.obj"
-    if include_cat and cat.exists():
-        out.append(("cat", *md.read_obj(cat)))
+    if include_cat:
+        out.append(("cat", np.load(CAT / "reference.npy"), np.load(CAT / "faces.npy")))
     return out
