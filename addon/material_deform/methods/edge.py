@@ -31,7 +31,7 @@ from bpy.props import (
 
 from .. import bridge
 from ..model import BindError, load_core, settings
-from . import Method, Result, convergence_status, register_method
+from .base import Method, Result, convergence_status, register_method
 
 DIRECTION_ATTR = "md_direction"  # default vector point attribute of the direction field
 _AXES = {"X": 0, "Y": 1, "Z": 2}

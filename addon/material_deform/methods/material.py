@@ -17,7 +17,7 @@ from .. import aniso_map as amap
 from .. import bridge
 from .. import stiffness_map as sm
 from ..model import BindError, load_core, settings
-from . import Method, Result, register_method
+from .base import Method, Result, register_method
 
 
 @dataclass

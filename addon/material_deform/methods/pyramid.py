@@ -20,7 +20,7 @@ from bpy.props import BoolProperty, FloatProperty, IntProperty
 
 from .. import anchor_math as am
 from ..model import BindError, load_core, settings
-from . import Method, Result, convergence_status, register_method
+from .base import Method, Result, convergence_status, register_method
 
 
 def _live_changed(self, context):
