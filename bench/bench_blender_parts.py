@@ -87,7 +87,7 @@ def main():
 
         handler = median_ms(handler_step, args.reps)
         entry = session.entry_for(obj, scene)
-        rest_check = median_ms(lambda i: session._check_rest(obj, entry), 5 * args.reps)
+        rest_check = median_ms(lambda i: session.output._check_rest(obj, entry), 5 * args.reps)
         # Blender alone: the same Empty moves and updates with the object not live
         floor = median_ms(lambda i: (move(i + 500), vl.update(), vl.update()), args.reps)
         s.live = True

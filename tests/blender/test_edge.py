@@ -100,7 +100,7 @@ def test_settle_equals_the_numpy_library_and_anchors_follow_exactly():
     assert np.abs(x - want).max() <= 1e-6 * diag  # float32 key
     assert want[:, 2].min() < -0.05 * diag  # gravity does sag the sheet (not a no-op compare)
     # in float64: the same solve again from rest (no warm start)
-    session._cache[obj.as_pointer()].state.pop("x")
+    session.state._cache[obj.as_pointer()].state.pop("x")
     got = session.compute(obj, bpy.context.scene, budget=None)
     assert np.abs(got - want).max() <= 1e-9 * diag
     np.testing.assert_array_equal(got[idx], pos)  # hard constraints: exactly the Empty's motion
@@ -198,12 +198,12 @@ def test_live_response_changes_the_result_without_rebind():
     update()
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
     full = output(obj).copy()
-    solver = session._cache[obj.as_pointer()].solver
+    solver = session.state._cache[obj.as_pointer()].solver
     fp = obj.material_deform.fp_method
     e.p_stretch = 0.3  # live: same solver, same bind, a different result
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
     soft = output(obj).copy()
-    assert session._cache[obj.as_pointer()].solver is solver
+    assert session.state._cache[obj.as_pointer()].solver is solver
     assert solver.deformer.factorizations == 1
     assert obj.material_deform.fp_method == fp and session.stale_reason(obj) == ""
     assert np.abs(soft - full).max() > 1e-3
@@ -282,7 +282,7 @@ def test_undo_bind_and_move():
     assert not obj.material_deform.bound and obj.data.shape_keys is None
     assert obj.material_deform.method == "EDGE"
     assert rest(obj).tobytes() == before.tobytes()
-    assert obj.as_pointer() not in session._cache
+    assert obj.as_pointer() not in session.state._cache
     assert bpy.ops.ed.redo() == {"FINISHED"}
     obj = bpy.data.objects["Sheet"]
     assert obj.material_deform.bound
@@ -320,7 +320,7 @@ def test_bake_runs_every_frame_to_convergence_warm_started():
     emp.location.z += 0.3
     emp.keyframe_insert("location", frame=4)
     assert bpy.ops.object.material_deform_bake(frame_start=1, frame_end=4) == {"FINISHED"}
-    warm = session._cache[obj.as_pointer()].solver.deformer.last_iterations  # frame 4, from 3
+    warm = session.state._cache[obj.as_pointer()].solver.deformer.last_iterations  # frame 4, from 3
     keys = obj.data.shape_keys.key_blocks
     n = len(rest(obj))
     used = []
