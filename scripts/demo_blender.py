@@ -301,7 +301,7 @@ def ps_pose_tip(obj, tip, v, target):
 
 
 def build_pose_space():
-    from material_deform import bridge
+    from material_deform import bridge, session
     from material_deform.methods import pose_space
 
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
@@ -330,7 +330,7 @@ def build_pose_space():
             assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
             ps_pose_tip(obj, tip, v, ps_bend(v, pose[0], pose[1]))
             x = bridge.shape_key_positions(obj, s.output_key_name)
-            w = pose_space.weights_readout(obj)
+            w = pose_space.weights_readout(session.cached_entry(obj))
             shown = " ".join(f"{wi:.2f}" for _n, wi in w)
             print(f"pose space demo, {text}: weights (rest, curl, side) = {shown}")
             label(text, (x0 + 0.8, 0.0, 5.6))

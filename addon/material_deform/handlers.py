@@ -1,13 +1,13 @@
 """Live updates: Empties moved interactively (depsgraph) or by animation (frame change, also
 in background renders), rebuilding solvers after a .blend is loaded and re-validating them after
-undo/redo."""
+undo/redo; and the session's answers to changed settings (``updates``)."""
 
 from __future__ import annotations
 
 import bpy
 from bpy.app.handlers import persistent
 
-from . import bake, session, stiffness
+from . import bake, session, stiffness, updates
 
 _busy = False  # our own shape-key write triggers another depsgraph update
 
@@ -120,9 +120,11 @@ def register():
         if fn not in lst:
             lst.append(fn)
     _subscribe()
+    updates.connect(session.LISTENER)
 
 
 def unregister():
+    updates.disconnect()
     for name, fn in _HANDLERS:
         lst = getattr(bpy.app.handlers, name)
         if fn in lst:

@@ -16,7 +16,7 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import methods
+from . import methods, updates
 
 IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
 
@@ -24,9 +24,7 @@ IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
 def _settings_changed(self, context):
     """A setting the bind depends on changed: compare the object with its bound state again
     (so changing a setting back makes the bind valid again)."""
-    from . import session  # late: session imports the core lazily, keep registration light
-
-    session.settings_changed(self.id_data, getattr(context, "scene", None))
+    updates.bind_setting(self, context)
 
 
 def _is_empty(_self, obj):

@@ -251,7 +251,7 @@ class VIEW3D_PT_material_deform_deform(_MeshSubpanel, bpy.types.Panel):
         method = _method(col, obj)
         if method is not None:
             col.separator()
-            method.draw(col.column(), obj)
+            method.draw(col.column(), obj, session.cached_entry(obj))
 
 
 class VIEW3D_PT_material_deform_bake(_MeshSubpanel, bpy.types.Panel):

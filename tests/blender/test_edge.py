@@ -189,6 +189,24 @@ def test_live_budget_returns_early_and_the_timer_settles():
     assert np.abs(output(obj) - converged).max() < 1e-3 * diag
 
 
+def test_a_live_setting_solves_the_pose_again_at_once_unless_live_is_off():
+    obj, left, right = sheet()
+    e = obj.material_deform.edge
+    e.tolerance, e.settle_iterations = 1e-7, 20000
+    bind(obj)
+    pose(left, right)
+    update()
+    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    settled = output(obj).copy()
+    obj.material_deform.live = False
+    e.p_bend = 0.5  # Live off: the key keeps its result
+    np.testing.assert_array_equal(output(obj), settled)
+    obj.material_deform.live = True
+    e.p_stretch = 0.3  # written by the setting's own update, before any depsgraph update
+    assert np.abs(output(obj) - settled).max() > 1e-4
+    assert session.stale_reason(obj) == ""
+
+
 def test_live_response_changes_the_result_without_rebind():
     obj, left, right = sheet()
     e = obj.material_deform.edge

@@ -37,8 +37,10 @@ class Method:
                    the method's own PropertyGroup, registered as
                    ``obj.material_deform.<settings_name>`` (None: no settings of its own).
                    Settings the bind depends on go in ``fingerprint`` and get
-                   ``update=properties._settings_changed``: the session then compares the
-                   object with its bound state (changing a setting back makes the bind valid)
+                   ``update=updates.bind_setting``: the session then compares the object
+                   with its bound state (changing a setting back makes the bind valid).
+                   Live settings (read by ``check_live``) get ``update=updates.live_setting``
+                   so that the current pose is solved again with them
     """
 
     key = ""
@@ -84,10 +86,11 @@ class Method:
         """Cheap per-update check of method inputs that can change without an edit the
         session sees (raise BindError to stop updating)."""
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         """The method's own settings, drawn below the common panel controls (in the Deform
         subpanel, at the sidebar's default width: short labels, a search field's label on a
-        line of its own)."""
+        line of its own). ``entry``: the object's built solver and its state (``model.Entry``),
+        None when there is none, for readouts of the last solve."""
 
     def live_budget(self, obj) -> int | None:
         """Iterations per live update (iterative methods), None to converge every update."""

@@ -193,7 +193,7 @@ class MaterialMethod(Method):
             raise BindError("Axes Empty changed since bind - click Rebind")
         entry.state["axes_checked"] = key
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         s = settings(obj)
         layout.prop(s, "anisotropic")
         if s.anisotropic:

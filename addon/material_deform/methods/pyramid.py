@@ -19,15 +19,14 @@ import numpy as np
 from bpy.props import BoolProperty, FloatProperty, IntProperty
 
 from .. import anchor_math as am
+from .. import updates
 from ..model import BindError, load_core, settings
 from .base import Method, Result, convergence_status, register_method
 
 
 def _live_changed(self, context):
     """A live setting (no rebind): solve the current pose again with it."""
-    from .. import session  # late: session imports methods
-
-    session.resolve_live(self.id_data)
+    updates.live_setting(self, context)
 
 
 class PyramidSettings(bpy.types.PropertyGroup):
@@ -240,7 +239,7 @@ class PyramidMethod(Method):
         p = settings(obj).pyramid
         entry.state["settings"] = (float(p.tolerance), bool(p.stretch), int(p.max_iterations))
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         p = settings(obj).pyramid
         layout.prop(p, "live_iterations", text="Per Update")
         layout.prop(p, "tolerance")

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from ..inputs import gather, method_of
 from ..model import BindError, Entry, Inputs, settings
+from ..updates import Listener
 from . import binding, live, output, pose, state
 from .binding import (
     after_undo,
@@ -32,7 +33,7 @@ from .binding import (
     settings_changed,
     unbind,
 )
-from .live import apply, compute, live_update, settle, solve_status
+from .live import apply, compute, live_update, settle, solve_now, solve_status
 from .output import check_finite
 from .pose import has_bind_pose, owner_of, place_new_anchor, reset_empties, transforms_now
 from .state import (
@@ -44,10 +45,18 @@ from .state import (
     unsettled,
 )
 
+# what a changed setting asks of the session (connected by handlers.register)
+LISTENER = Listener(
+    bind_setting_changed=settings_changed,
+    live_setting_changed=resolve_live,
+    solve_now=solve_now,
+)
+
 __all__ = [
     "BindError",
     "Entry",
     "Inputs",
+    "LISTENER",
     "after_undo",
     "apply",
     "binding",
@@ -74,6 +83,7 @@ __all__ = [
     "settings",
     "settings_changed",
     "settle",
+    "solve_now",
     "solve_status",
     "stale_reason",
     "state",

@@ -12,7 +12,7 @@ from ..model import BindError, Entry, settings
 from .binding import entry_for, full_check
 from .output import _check_rest, _output_key, _record, check_finite
 from .pose import _live_matrices, _matrix_key, transforms_now
-from .state import _cache, _last_mode, _stale, _unsettled, mark_stale
+from .state import _cache, _last_mode, _stale, _unsettled, mark_stale, record_failure
 
 
 def compute(
@@ -119,6 +119,15 @@ def apply(
     bridge.set_key_record(obj, _record(obj, entry, mkey, settled=key not in _unsettled))
     entry.last_key = mkey
     return True
+
+
+def solve_now(obj, scene) -> None:
+    """A live setting changed and its effect shows at once: solve the pose again and write it.
+    A failure becomes the stale reason (a property's update callback must never raise)."""
+    try:
+        apply(obj, scene, force=True)
+    except Exception as exc:
+        record_failure(obj, str(exc))
 
 
 def settle(obj, scene, depsgraph=None, progress=None) -> None:
