@@ -259,26 +259,35 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
     )
 
 
-# Each method's own settings group becomes obj.material_deform.<settings_name>.
-for _m in methods.all_methods():
-    if _m.settings_class is not None:
-        MaterialDeformSettings.__annotations__[_m.settings_name] = PointerProperty(
-            type=_m.settings_class
-        )
-
-classes = (
-    MaterialDeformAnchor,
-    *(m.settings_class for m in methods.all_methods() if m.settings_class is not None),
-    MaterialDeformSettings,
-)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
+# The methods registered when the add-on registers, not when this module is imported, make the
+# Method menu (its annotation is a string, evaluated by register_class) and the settings groups,
+# so a method registered later (a script, a test) only needs the add-on registered again.
+classes: tuple = ()  # what register() registered, unregistered in reverse
+_groups: list[str] = []  # the settings groups register() added to MaterialDeformSettings
 
 
 def register():
-    _register_classes()
+    global classes
+    with_settings = [m for m in methods.all_methods() if m.settings_class is not None]
+    for m in with_settings:  # obj.material_deform.<settings_name>
+        MaterialDeformSettings.__annotations__[m.settings_name] = PointerProperty(
+            type=m.settings_class
+        )
+    _groups[:] = [m.settings_name for m in with_settings]
+    classes = (
+        MaterialDeformAnchor,
+        *(m.settings_class for m in with_settings),
+        MaterialDeformSettings,
+    )
+    for cls in classes:
+        bpy.utils.register_class(cls)
     bpy.types.Object.material_deform = PointerProperty(type=MaterialDeformSettings)
 
 
 def unregister():
     del bpy.types.Object.material_deform
-    _unregister_classes()
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
+    for name in _groups:
+        del MaterialDeformSettings.__annotations__[name]
+    _groups.clear()

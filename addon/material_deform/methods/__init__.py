@@ -15,6 +15,7 @@ from .base import (  # noqa: I001  (unsorted: the methods below come in menu ord
     enum_items,
     get,
     register_method,
+    unregister_method,
 )
 
 # registration order is the menu's order; the first method is the default
@@ -31,4 +32,5 @@ __all__ = [
     "enum_items",
     "get",
     "register_method",
+    "unregister_method",
 ]

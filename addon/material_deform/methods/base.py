@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..model import settings
+
 
 @dataclass
 class Result:
@@ -90,7 +92,18 @@ class Method:
         """The method's own settings, drawn below the common panel controls (in the Deform
         subpanel, at the sidebar's default width: short labels, a search field's label on a
         line of its own). ``entry``: the object's built solver and its state (``model.Entry``),
-        None when there is none, for readouts of the last solve."""
+        None when there is none, for readouts of the last solve. The default draws every
+        setting of ``settings_class`` that is not hidden, in the order declared."""
+        group = self.settings_of(obj)
+        if group is None:
+            return
+        for prop in group.bl_rna.properties:
+            if prop.identifier != "rna_type" and not prop.is_hidden:
+                layout.prop(group, prop.identifier)
+
+    def settings_of(self, obj):
+        """The object's group of this method's own settings, None if it has none."""
+        return getattr(settings(obj), self.settings_name) if self.settings_name else None
 
     def live_budget(self, obj) -> int | None:
         """Iterations per live update (iterative methods), None to converge every update."""
@@ -128,6 +141,12 @@ def register_method(method: Method) -> Method:
         raise ValueError(f"method {method.key!r}: key empty or taken, or number taken")
     _methods[method.key] = method
     return method
+
+
+def unregister_method(key: str) -> Method:
+    """Take a method out of the registry (with the add-on unregistered: the Method menu and the
+    settings groups are built from the registry when the add-on registers)."""
+    return _methods.pop(key)
 
 
 def get(key: str) -> Method:
