@@ -189,7 +189,8 @@ def test_live_budget_returns_early_and_the_timer_settles():
     assert np.abs(output(obj) - converged).max() < 1e-3 * diag
 
 
-def test_a_live_setting_solves_the_pose_again_at_once_unless_live_is_off():
+def settled_sheet():
+    """The sheet bound, posed and settled; returns it and its edge settings."""
     obj, left, right = sheet()
     e = obj.material_deform.edge
     e.tolerance, e.settle_iterations = 1e-7, 20000
@@ -197,6 +198,11 @@ def test_a_live_setting_solves_the_pose_again_at_once_unless_live_is_off():
     pose(left, right)
     update()
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    return obj, e
+
+
+def test_a_live_setting_solves_the_pose_again_at_once_unless_live_is_off():
+    obj, e = settled_sheet()
     settled = output(obj).copy()
     obj.material_deform.live = False
     e.p_bend = 0.5  # Live off: the key keeps its result
@@ -208,13 +214,7 @@ def test_a_live_setting_solves_the_pose_again_at_once_unless_live_is_off():
 
 
 def test_live_response_changes_the_result_without_rebind():
-    obj, left, right = sheet()
-    e = obj.material_deform.edge
-    e.tolerance, e.settle_iterations = 1e-7, 20000
-    bind(obj)
-    pose(left, right)
-    update()
-    assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
+    obj, e = settled_sheet()
     full = output(obj).copy()
     solver = session.state._cache[obj.as_pointer()].solver
     fp = obj.material_deform.fp_method
