@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -135,6 +136,32 @@ Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega) {
   return R;
 }
 
+double rotation_vector_mismatch(const Eigen::Vector3d& v, const Eigen::Matrix3d& R) {
+  const Eigen::Matrix3d E = rotation_exp(v);
+  if (!E.allFinite()) return std::numeric_limits<double>::quiet_NaN();
+  return rotation_log(E.transpose() * R).norm();
+}
+
+Eigen::Vector3d rotation_log_near(const Eigen::Matrix3d& R, const Eigen::Vector3d& near) {
+  constexpr double kTwoPi = 6.28318530717958647693;
+  const Eigen::Vector3d r = rotation_log(R);
+  const double theta = r.norm();
+  Eigen::Vector3d best = r;
+  if (theta > 0.0) {
+    // |t u - near|^2 = t^2 - 2 t (u . near) + |near|^2: the t in theta + 2 pi Z nearest u . near.
+    const Eigen::Vector3d u = r / theta;
+    best = (theta + kTwoPi * std::round((u.dot(near) - theta) / kTwoPi)) * u;
+  }
+  // At a whole turn every axis is a log of the identity, and R's axis is noise: keep near's.
+  const double len = near.norm();
+  if (theta <= kRotationVectorTolerance && len >= 0.5 * kTwoPi) {
+    const Eigen::Vector3d a = near / len;
+    const Eigen::Vector3d kept = (kTwoPi * std::round(len / kTwoPi) + r.dot(a)) * a;
+    if ((kept - near).squaredNorm() < (best - near).squaredNorm()) best = kept;
+  }
+  return best;
+}
+
 namespace {
 // SVD M = U diag(sigma) V^T of a finite M with det M > 0 (the checks polar_decompose and
 // transform_log share).
@@ -158,6 +185,42 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
   *S = U * svd.singularValues().asDiagonal() * U.transpose();
   if (!S->allFinite())
     throw std::invalid_argument("transform: entries too large (scale overflows)");
+}
+
+std::vector<Eigen::Vector3d> unwrap_rotations(const Matrix3Array& frames, int k,
+                                              const std::vector<Eigen::Vector3d>& start) {
+  if (k < 1 || frames.size() % static_cast<size_t>(k) != 0) {
+    throw std::invalid_argument("unwrap_rotations: expected a whole number of frames of k = " +
+                                std::to_string(k) + " rotations");
+  }
+  if (!start.empty() && start.size() != static_cast<size_t>(k)) {
+    throw std::invalid_argument("start: expected one vector per sequence (" + std::to_string(k) +
+                                "), got " + std::to_string(start.size()));
+  }
+  for (size_t a = 0; a < start.size(); ++a) {
+    if (!start[a].allFinite()) {
+      throw std::invalid_argument("start[" + std::to_string(a) + "]: contains NaN or infinity");
+    }
+  }
+  std::vector<Eigen::Vector3d> out(frames.size());
+  Eigen::Matrix3d S, R;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    try {
+      polar_decompose(frames[i], &S, &R);
+    } catch (const std::invalid_argument& e) {
+      const size_t kk = static_cast<size_t>(k);
+      throw std::invalid_argument("rotations[" + std::to_string(i / kk) +
+                                  (k > 1 ? "][" + std::to_string(i % kk) + "]" : "]") + ": " +
+                                  e.what());
+    }
+    const size_t a = i % static_cast<size_t>(k);
+    if (i >= static_cast<size_t>(k)) {
+      out[i] = rotation_log_near(R, out[i - static_cast<size_t>(k)]);
+    } else {
+      out[i] = start.empty() ? rotation_log(R) : rotation_log_near(R, start[a]);
+    }
+  }
+  return out;
 }
 
 bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace) {
