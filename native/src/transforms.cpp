@@ -53,11 +53,19 @@ constexpr RodriguesSeries make_series() {
 }
 constexpr RodriguesSeries kSeries = make_series();
 
-// sin(t)/t and (1 - cos t)/t^2 beyond the series range (only large anisotropic blends get there).
-inline void trig_coefficients(double t2, double* a, double* b) {
-  const double t = std::sqrt(t2), h = std::sin(0.5 * t);
-  *a = std::sin(t) / t;
-  *b = 2.0 * h * h / t2;
+// Beyond the series range (blends of rotation vectors longer than pi, or weights outside
+// [0, 1]): the factor that takes the whole turns out of a rotation vector of squared length t2,
+// i.e. maps angle t to t - 2 pi round(t / 2 pi) in [-pi, pi] about the same axis, the same
+// rotation, where the series applies. 2 pi in three parts (Cody-Waite): k * kTwoPiHi is exact
+// for k < 2^29 turns and the subtraction from t is exact, so the reduced angle is as accurate
+// as sin(t) would be; a square root and a division instead of two sines.
+inline double whole_turns_removed(double t2) {
+  constexpr double kTwoPiHi = 6.2831854820251465;        // float(2 pi): 24 significant bits
+  constexpr double kTwoPiMid = -1.7484556000744487e-07;  // double(2 pi) - kTwoPiHi, exact
+  constexpr double kTwoPiLo = 2.4492935982947064e-16;    // 2 pi - double(2 pi)
+  const double t = std::sqrt(t2);
+  const double k = std::round(t * (1.0 / 6.283185307179586));
+  return (((t - k * kTwoPiHi) - k * kTwoPiMid) - k * kTwoPiLo) / t;
 }
 
 // e^s for four lanes without a libm call per lane (the blended log-scale of every face is
@@ -103,17 +111,16 @@ MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
 
 // R = I + a K + b K^2 for K = [omega]x.
 MD_ALWAYS_INLINE void rodrigues(double x, double y, double z, double scale, Eigen::Matrix3d* R) {
-  const double t2 = x * x + y * y + z * z;
-  double a, b;
-  if (t2 <= kSeriesMaxT2) {
-    a = kSeries.a[kSeriesTerms - 1];
-    b = kSeries.b[kSeriesTerms - 1];
-    for (int k = kSeriesTerms - 2; k >= 0; --k) {
-      a = a * t2 + kSeries.a[k];
-      b = b * t2 + kSeries.b[k];
-    }
-  } else {
-    trig_coefficients(t2, &a, &b);
+  double t2 = x * x + y * y + z * z;
+  if (!(t2 <= kSeriesMaxT2)) {
+    const double f = whole_turns_removed(t2);
+    x *= f, y *= f, z *= f;
+    t2 = x * x + y * y + z * z;
+  }
+  double a = kSeries.a[kSeriesTerms - 1], b = kSeries.b[kSeriesTerms - 1];
+  for (int k = kSeriesTerms - 2; k >= 0; --k) {
+    a = a * t2 + kSeries.a[k];
+    b = b * t2 + kSeries.b[k];
   }
   a *= scale;
   b *= scale;
@@ -418,24 +425,25 @@ bool similarity_logs(const std::vector<TransformLog>& logs, std::vector<double>*
 
 // sc * Rodrigues(x, y, z) for four lanes, column-major into o[0..8]: sc (I + A K + B K^2) with
 // K = [(x, y, z)]x and the series coefficients A = sin t / t, B = (1 - cos t) / t^2.
-MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x, const Vec4d& y, const Vec4d& z, const Vec4d& sc,
-                                 Vec4d* o) {
-  const Vec4d t2 = x * x + y * y + z * z;
+MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x_in, const Vec4d& y_in, const Vec4d& z_in,
+                                 const Vec4d& sc, Vec4d* o) {
+  Vec4d x = x_in, y = y_in, z = z_in;
+  Vec4d t2 = x * x + y * y + z * z;
+  // Not reached by convex blends of principal logs (angles <= pi): rotation vectors past half a
+  // turn, weights outside [0, 1].
+  if (any_lane(t2 > kSeriesMaxT2)) {
+    Vec4d f = {1.0, 1.0, 1.0, 1.0};
+    for (int l = 0; l < kGroupFaces; ++l) {
+      if (!(t2[l] <= kSeriesMaxT2)) f[l] = whole_turns_removed(t2[l]);
+    }
+    x *= f, y *= f, z *= f;
+    t2 = x * x + y * y + z * z;
+  }
   const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
   Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
   for (int j = kSeriesTerms - 2; j >= 0; --j) {
     A = A * t2 + kSeries.a[j];
     B = B * t2 + kSeries.b[j];
-  }
-  if (any_lane(t2 > kSeriesMaxT2)) {  // not reached by convex blends of angles <= pi
-    for (int l = 0; l < kGroupFaces; ++l) {
-      if (t2[l] > kSeriesMaxT2) {
-        double a, b;
-        trig_coefficients(t2[l], &a, &b);
-        A[l] = a;
-        B[l] = b;
-      }
-    }
   }
   A *= sc;
   B *= sc;
