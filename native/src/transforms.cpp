@@ -429,8 +429,14 @@ MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x_in, const Vec4d& y_in, const Vec
                                  const Vec4d& sc, Vec4d* o) {
   Vec4d x = x_in, y = y_in, z = z_in;
   Vec4d t2 = x * x + y * y + z * z;
+  const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
+  Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
+  for (int j = kSeriesTerms - 2; j >= 0; --j) {
+    A = A * t2 + kSeries.a[j];
+    B = B * t2 + kSeries.b[j];
+  }
   // Not reached by convex blends of principal logs (angles <= pi): rotation vectors past half a
-  // turn, weights outside [0, 1].
+  // turn, weights outside [0, 1]. The series again, after the whole turns are taken out.
   if (any_lane(t2 > kSeriesMaxT2)) {
     Vec4d f = {1.0, 1.0, 1.0, 1.0};
     for (int l = 0; l < kGroupFaces; ++l) {
@@ -438,12 +444,11 @@ MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x_in, const Vec4d& y_in, const Vec
     }
     x *= f, y *= f, z *= f;
     t2 = x * x + y * y + z * z;
-  }
-  const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
-  Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
-  for (int j = kSeriesTerms - 2; j >= 0; --j) {
-    A = A * t2 + kSeries.a[j];
-    B = B * t2 + kSeries.b[j];
+    A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
+    for (int j = kSeriesTerms - 2; j >= 0; --j) {
+      A = A * t2 + kSeries.a[j];
+      B = B * t2 + kSeries.b[j];
+    }
   }
   A *= sc;
   B *= sc;
