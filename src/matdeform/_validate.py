@@ -188,3 +188,16 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     if t.shape[1] == 4 and np.abs(t[:, 3, :] - _AFFINE_ROW).max() > 1e-12:
         raise _fail(name, "4x4 transforms must be affine (bottom row 0 0 0 1)")
     return np.ascontiguousarray(t)
+
+
+def as_rotation_vectors(x, count: int, name: str = "rotation_vectors") -> np.ndarray:
+    """(count,3) finite float64 axis * angle vectors (radians, any length), C-contiguous."""
+    try:
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(name, f"expected a float array of shape ({count},3)") from None
+    if a.shape != (count, 3):
+        raise _fail(name, f"expected shape ({count},3), one vector per anchor, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise _fail(name, "contains NaN or infinity")
+    return np.ascontiguousarray(a)

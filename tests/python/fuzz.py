@@ -51,6 +51,7 @@ FUNCTIONS = [
     "blend_transforms",
     "obj_round_trip",
     "set_num_threads",
+    "unwrap_rotations",
 ]
 # Checked for relabelling on soups too: they only count and sort.
 TOPOLOGY = {"dual_edges", "face_components", "faces_inside", "boundary_and_nonmanifold_edges"}
@@ -581,6 +582,51 @@ def case_threads(rng, v, f, hostile, perm, kind):
         md.set_num_threads(before)
 
 
+def case_unwrap(rng, v, f, hostile, perm, kind):
+    """An animation of k anchors (turns of up to ~115 degrees per frame about wobbling axes,
+    scaled, sometimes float32) unwrapped, then its last frame deformed with those vectors on a
+    small tube; hostile: NaN or det <= 0 frames, bad or huge starts, a vector off its rotation."""
+    count, k = int(rng.integers(0, 30)), int(rng.integers(1, 4))
+    axes, speed = rng.normal(size=(k, 3)), rng.uniform(-2, 2, k)
+    frames = np.empty((count, k, 3, 3))
+    for t in range(count):
+        for a in range(k):
+            turn = rotation(axes[a] + 0.2 * rng.normal(size=3), speed[a] * t)
+            frames[t, a] = turn @ np.diag(10.0 ** rng.uniform(-0.5, 0.5, 3))
+    if rng.random() < 0.3:
+        frames = frames.astype(np.float32)
+    start = (
+        rng.normal(scale=10.0 ** rng.uniform(-1, 3), size=(k, 3)) if rng.random() < 0.3 else None
+    )
+    what = rng.choice(["nan", "det", "start_shape", "start_inf", "start_huge", "vector"])
+    if hostile and count and what == "nan":
+        frames[rng.integers(0, count), rng.integers(0, k), 1, 1] = np.nan
+    elif hostile and count and what == "det":
+        frames[rng.integers(0, count), rng.integers(0, k)] *= -1
+    elif hostile and what == "start_shape":
+        start = np.zeros((k + 1, 3))
+    elif hostile and what == "start_inf":
+        start = np.full((k, 3), np.inf)
+    elif hostile and what == "start_huge":
+        start = np.full((k, 3), 10.0 ** rng.uniform(15, 300))
+    vectors = md.unwrap_rotations(frames, start=start)
+    finite("unwrap_rotations", vectors)
+    if vectors.shape != (count, k, 3):
+        raise Failure("error", f"unwrap_rotations: shape {vectors.shape}")
+    if not count:
+        return
+    tv, tf = shapes.tube(length=4.0, radius=0.5, n_around=5, n_along=3 * k)
+    ring = 2 * 5  # faces per segment
+    anchors = [np.arange(3 * a * ring, (3 * a + 1) * ring) for a in range(k)]
+    T = np.tile(np.eye(4), (k, 1, 1))
+    T[:, :3, :3] = frames[-1]
+    rv = vectors[-1].copy()
+    if hostile and what == "vector":
+        rv[0] += 0.5
+    X = md.MaterialDeformer(tv, tf, anchors).deform(T, rotation_vectors=rv)
+    finite("deform(rotation_vectors)", X)
+
+
 CASES = {
     "MaterialDeformer": case_deformer,
     "harmonic_weights": case_harmonic_weights,
@@ -603,6 +649,7 @@ CASES = {
     "blend_transforms": case_blend,
     "obj_round_trip": case_obj,
     "set_num_threads": case_threads,
+    "unwrap_rotations": case_unwrap,
 }
 assert set(CASES) == set(FUNCTIONS)
 

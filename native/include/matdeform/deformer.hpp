@@ -51,12 +51,19 @@ class MaterialDeformer {
 
   // transforms: k 4x4 matrices (bottom row ignored). With has_translation false only the 3x3
   // block is used. pinned_positions: (|pinned|,3) or nullptr. Returns (n,3).
+  // rotation_vectors: (k,3) or nullptr. Row a is a log of the rotation factor R_a of anchor a's
+  // 3x3 block (polar decomposition M = S R), of any length: the caller picks the branch, e.g.
+  // 3 pi about the twist axis for a turn and a half, and the blend uses it in place of R_a's
+  // principal log (angle <= pi). exp(row a) must equal R_a within kRotationVectorTolerance
+  // (rad); otherwise std::invalid_argument, and nothing is changed. nullptr: principal logs.
   Vertices deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-                  const Vertices* pinned_positions) const;
+                  const Vertices* pinned_positions,
+                  const Vectors3* rotation_vectors = nullptr) const;
   // The same, rounded to float32 into out: n rows of 3 floats (C order), what a shape key or a
   // point cache stores; no (n,3) result is allocated per call.
   void deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-              const Vertices* pinned_positions, float* out) const;
+              const Vertices* pinned_positions, float* out,
+              const Vectors3* rotation_vectors = nullptr) const;
 
   // (m,k) blending weights on the full mesh (mean of the axes when anisotropic; zero rows
   // outside the region).
@@ -77,7 +84,8 @@ class MaterialDeformer {
   const PoissonRepositioner& repositioner(bool follow) const;
   // deform() on the region, under mutex_: sub_out gets (region vertices,3).
   void solve_region(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-                    const Vertices* pinned_positions, Vertices* sub_out) const;
+                    const Vertices* pinned_positions, const Vectors3* rotation_vectors,
+                    Vertices* sub_out) const;
   std::vector<int> fixed_set(const std::vector<int>& primary) const;
 
   Vertices rest_;                           // full mesh
