@@ -300,3 +300,12 @@ def test_farm_bake_script_writes_the_bundle(tmp_path):
         text=True,
     )
     assert bad.returncode == 2 and "frame range 5-4 is empty" in bad.stderr
+
+
+def test_docs_give_the_commands_the_bundle_writes():
+    """docs/farm.md's example commands are what farm_job writes for its example."""
+    p = farm_job.job_parameters("/shots/shot.blend", "Tentacle", 1, 240, 10, "/shots/farm_Tentacle")
+    cmds = farm_job.commands("/shots/farm_Tentacle/job", p)
+    text = (ROOT / "docs" / "farm.md").read_text()
+    for key in ("local", "deadline", "chunk", "merge"):
+        assert cmds[key] in text, key
