@@ -7,6 +7,7 @@ add-on says so first and bakes nothing; Write Farm Bake Job writes the job."""
 import json
 import os
 import random
+import re
 import shlex
 import subprocess
 import sys
@@ -204,8 +205,8 @@ def task_outputs(log):
             cur = None
         elif cur is not None and text.strip():
             cur.append(text)
-    for t in tasks:
-        if t and t[0].startswith("Blender ") and len(t[0].split()) <= 6:
+    for t in tasks:  # "Blender 3.4.1", "Blender 4.3.2 (hash 32f5fdce0a0a built ...)"
+        if t and re.fullmatch(r"Blender \d+\.\d+(\.\d+)?( \(hash .*\))?", t[0]):
             del t[0]
     return tasks
 
