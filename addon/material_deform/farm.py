@@ -62,7 +62,10 @@ def run_chunk(blend: str, obj_name: str, frames_expr: str, output: str) -> str:
     _say(f"baking '{obj.name}' ({settings(obj).method}) frames {first}-{last} into {path}")
     unsettled: list = []
     t0 = time.perf_counter()
-    progress = lambda _f, text: _say(text.removeprefix("Material Deform: "))  # noqa: E731
+
+    def progress(_fraction, text):  # a line per frame in the task's log
+        _say(text.removeprefix("Material Deform: "))
+
     bake.write_point_cache(obj, scene, frames, path, progress, unsettled)
     _say(f"chunk {first}-{last} done in {time.perf_counter() - t0:.2f} s")
     if unsettled:
