@@ -307,6 +307,7 @@ class VIEW3D_MT_material_deform(bpy.types.Menu):
         layout.operator("object.material_deform_bake_point_cache")
         layout.operator("object.material_deform_bake")
         layout.operator("object.material_deform_clear_bake")
+        layout.operator("object.material_deform_farm_job", text="Write Farm Bake Job...")
 
 
 def draw_object_menu(self, _context):

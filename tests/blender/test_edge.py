@@ -322,9 +322,10 @@ def test_panel_draws_the_edge_settings():
         assert prop in text
 
 
-def test_bake_runs_every_frame_to_convergence_warm_started():
-    """Each baked frame is the converged pose of that frame (the library from rest, to the
-    tolerance's reach), and the frames follow one another: warm starts need fewer iterations."""
+def test_bake_solves_every_frame_to_convergence_from_rest():
+    """Each baked frame is the converged pose of that frame from the library's own start (the
+    rest mesh), never from the previous frame: a baked frame depends on its frame only, so a
+    farm may bake the frames in chunks, in any order (docs/farm.md)."""
     obj, left, right = sheet()
     e = obj.material_deform.edge
     e.tolerance, e.settle_iterations, e.gravity_strength = 1e-7, 20000, 1.0
@@ -338,7 +339,7 @@ def test_bake_runs_every_frame_to_convergence_warm_started():
     emp.location.z += 0.3
     emp.keyframe_insert("location", frame=4)
     assert bpy.ops.object.material_deform_bake(frame_start=1, frame_end=4) == {"FINISHED"}
-    warm = session.state._cache[obj.as_pointer()].solver.deformer.last_iterations  # frame 4, from 3
+    last = session.state._cache[obj.as_pointer()].solver.deformer.last_iterations  # frame 4
     keys = obj.data.shape_keys.key_blocks
     n = len(rest(obj))
     used = []
@@ -350,9 +351,9 @@ def test_bake_runs_every_frame_to_convergence_warm_started():
         used.append(d.last_iterations)
         baked = [k for k in keys if k.name.startswith("MD Bake") and k.name.endswith(f"{f:04d}")]
         assert len(baked) == 1, [k.name for k in keys]
-        assert np.abs(co(baked[0].data) - want).max() < 1e-4 * d.diagonal
+        assert np.abs(co(baked[0].data) - want).max() < 1e-6 * d.diagonal
     assert min(used) > 20
-    assert warm < used[-1]  # frame 4 from frame 3's result, not from rest
+    assert last == used[-1]  # frame 4 from rest, as the library (from frame 3: fewer)
 
 
 def test_settling_stops_at_settle_max_when_the_tolerance_is_out_of_reach():

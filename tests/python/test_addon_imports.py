@@ -27,7 +27,7 @@ METHOD_MAY_IMPORT = {
     "stiffness_map",
 }
 # The layer that talks to Blender's UI and events; nothing else imports the session.
-SESSION_USERS = {"", "handlers", "operators", "ui", "bake"}
+SESSION_USERS = {"", "handlers", "operators", "ui", "bake", "farm"}  # farm: its operator and tasks
 
 
 def modules(root: Path) -> dict[str, tuple[Path, bool]]:
