@@ -126,6 +126,14 @@ def test_carried_first_iteration_matches_a_dense_reference():
     damped = d.solve(pos, iterations=1, tol=0, relaxation=0.6, **opts)
     np.testing.assert_array_equal(damped, x1)
     assert d.solve(pos, iterations=2, tol=0, relaxation=0.6, **opts) != pytest.approx(x2)
+    # turns up to 15 degrees take the plain first step (relaxed as usual), larger ones carry
+    for deg, carried in ((14.0, False), (16.0, True)):
+        small = v[c] + [0.3, -0.1, 0.2]
+        small[k:] = v[c[k:]] @ rotation([1.0, 0.2, -0.3], np.radians(deg)).T
+        x = d.solve(small, iterations=1, tol=0, **opts)
+        r = ref.iterate(v, f, v, c, small, carry=carried, **kw)
+        assert np.abs(r - ref.iterate(v, f, v, c, small, carry=not carried, **kw)).max() > 1e-3
+        np.testing.assert_allclose(x, r, atol=1e-9 * d.diagonal, rtol=0)
 
 
 def test_twisted_tube_turns_its_middle_by_half_the_tip():
@@ -160,6 +168,13 @@ def test_twisted_tube_turns_its_middle_by_half_the_tip():
             # measured: half the tip to 1e-6 degrees (the set-up is symmetric about the middle)
             np.testing.assert_allclose(got, sign * tips / 2, atol=0.01, rtol=0)
             assert (np.diff(sign * got) > 0).all()
+    # the same tube with alternating diagonals (mirror-symmetric) twists to 175 at the defaults
+    for i in range(40):  # faces: (a, b, d) per quad, then (a, d, c) per quad
+        for j in range(i % 2, 16, 2):
+            q, a, b = i * 16 + j, i * 16 + j, i * 16 + (j + 1) % 16
+            f[q], f[640 + q] = [a, b, a + 16], [b, b + 16, a + 16]
+    tips = np.r_[30:175:15, 175]
+    np.testing.assert_allclose(mid_angles(1e-4, 1.0, tips), tips / 2, atol=0.01, rtol=0)
 
 
 def test_mesh_edges_order_and_count():
