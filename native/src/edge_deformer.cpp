@@ -761,7 +761,9 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   for (int v = 0; v < d.n; ++v) {
     cur[d.slot[v]] = Vec4d{X0(v, 0), X0(v, 1), X0(v, 2), 0.0};
   }
-  double move0 = 0.0;  // constrained vertices jump to their targets in the first iteration
+  // In the first iteration constrained vertices jump to their targets and passive ones (parts
+  // without a constrained vertex, loose vertices) to rest, where they stay bit for bit.
+  double move0 = 0.0;
   for (int c = 0; c < d.nc; ++c) {
     const Vec4d p = {constrained_positions(c, 0), constrained_positions(c, 1),
                      constrained_positions(c, 2), 0.0};
@@ -769,7 +771,14 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     const Vec4d dv = p - cur[nf + c];
     move0 = std::max(move0, dot3(dv, dv));
   }
-  for (int s = nf + d.nc; s < nf + d.nfix; ++s) next[s] = cur[s];
+  const bool anchors_moved = move0 > 0.0;
+  for (int s = nf + d.nc; s < nf + d.nfix; ++s) {
+    const int v = d.slot_vertex[s];
+    const Vec4d r = {d.rest(v, 0), d.rest(v, 1), d.rest(v, 2), 0.0};
+    const Vec4d dv = r - cur[s];
+    move0 = std::max(move0, dot3(dv, dv));
+    cur[s] = next[s] = r;
+  }
 
   // Constant part of the right-hand side: -A_fc x_fixed + g/2 (Eq. 9 with E_g = -sum <g, v>).
   const Vec4d g2 = {0.5 * options.gravity(0), 0.5 * options.gravity(1), 0.5 * options.gravity(2),
@@ -787,7 +796,7 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   // half turn the wrong way that no later iteration undoes). So when the anchors turn, the
   // first estimation step also turns each edge's rest quantities by the anchors' rotations
   // spread over the mesh (Impl::carry_rotations).
-  const bool carried = move0 > 0.0 && d.carry_rotations(cur, next);
+  const bool carried = anchors_moved && d.carry_rotations(cur, next);
   const bool avx2 = cpu_has_avx2_fma();
   const int ng = static_cast<int>(d.groups.size());
   // Parallel parts of the estimation step, each scattering into its own accumulator. Below

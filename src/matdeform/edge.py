@@ -53,9 +53,9 @@ class EdgeDeformer:
 
     Defined behaviour: boundary edges, non-manifold edges and edges whose rest faces are
     degenerate have no bending term; vertices in no face, or in a connected part without a
-    constrained vertex, are passive (they keep their ``initial`` or rest position). A set-up that
-    leaves some vertex undetermined raises ValueError (e.g. stretch = 0 on a flat part with fewer
-    than three non-collinear constrained vertices).
+    constrained vertex, are passive (they stay at rest bit for bit, whatever ``initial`` holds).
+    A set-up that leaves some vertex undetermined raises ValueError (e.g. stretch = 0 on a flat
+    part with fewer than three non-collinear constrained vertices).
     """
 
     def __init__(

@@ -390,7 +390,8 @@ TEST(EdgeDeformer, PartsWithoutConstraintsAndLooseVerticesArePassive) {
   EdgeSolveOptions s = iterations(4);
   s.gravity << 0, 0, -1;
   const Vertices X = d.solve(pos, s, &init);
-  EXPECT_EQ(max_diff(X.bottomRows(B.rows() + 1), init.bottomRows(B.rows() + 1)), 0.0);
+  // at rest bit for bit, whatever the start holds: the rule for every method
+  EXPECT_EQ(max_diff(X.bottomRows(B.rows() + 1), V.bottomRows(B.rows() + 1)), 0.0);
   EXPECT_GT(max_diff(X.topRows(A.rows()), V.topRows(A.rows())), 0.1);
 }
 

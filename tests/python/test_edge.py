@@ -418,5 +418,9 @@ def test_passive_parts_keep_their_positions():
     init = v.copy()
     init[len(a_v) :] += 0.5
     x = d.solve(v[c], iterations=5, tol=0, gravity=(0, 0, -0.01), initial=init)
-    np.testing.assert_array_equal(x[len(a_v) :], init[len(a_v) :])
+    # the rule for every method: parts without control stay at rest, bit for bit
+    np.testing.assert_array_equal(x[len(a_v) :], v[len(a_v) :])
     assert np.abs(x[: len(a_v)] - v[: len(a_v)]).max() > 1e-3
+    # the jump back to rest is the first iteration's move (the rest stays where it is)
+    d.solve(v[c], iterations=1, tol=0, initial=init)
+    assert d.last_move == pytest.approx(0.5 * np.sqrt(3) / d.diagonal, rel=1e-12)

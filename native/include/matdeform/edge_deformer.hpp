@@ -40,7 +40,8 @@ struct EdgeSolveOptions {
 //  - boundary edges, non-manifold edges (3+ faces), edges whose two faces have the same third
 //    vertex and edges whose rest faces have no usable normal get no sigma term;
 //  - vertices in a connected part (through edges) without a constrained vertex, and vertices in
-//    no face, are passive: they keep their position in `initial` (rest when none is given);
+//    no face, are passive: solve() returns their rest positions bit for bit (whatever `initial`
+//    holds);
 //  - a system the energy does not determine (e.g. stretch = 0 on a flat part with fewer than
 //    three non-collinear constrained vertices) throws std::invalid_argument.
 // Factors once in the constructor; solve() only assembles right-hand sides and substitutes.
