@@ -23,6 +23,15 @@ namespace {
 
 using V3 = Eigen::Vector3d;
 
+// Positions (constraints, starts, results) may lie at most this many rest diagonals from the
+// rest mesh's centre: squared lengths and the kernels' products of four lengths stay finite
+// (the mesh itself is at most 1e50 across, validate_mesh), and a result beyond it has lost
+// every digit of the mesh's shape anyway.
+constexpr double kMaxReach = 1e50;
+// Per-edge stiffness (stretch or bend times edge_weight times kappa) at most this: the
+// normal-equation entries, sums of a few dozen of them, stay finite.
+constexpr double kMaxStiffness = 1e300;
+
 // Anchor turns (from the start to the constrained positions) up to which the first estimation
 // step takes the start's own edge frames; beyond, it carries them by the anchors' rotations
 // (EdgeDeformer::solve). Below it the plain step's linear error, ~(1 - cos) of the turn, is
@@ -279,6 +288,15 @@ struct EdgeDeformer::Impl {
   // constrained indices, caller order). Each is fitted with a rotation in solve().
   std::vector<int> anchor_ptr, anchor_idx;
   std::vector<double> carry;  // 4 per slot: rotation quaternion of the carried estimation
+  V3 centre = V3::Zero();     // of the rest bounding box
+
+  // Largest coordinate distance of rows of X from the rest centre, in rest diagonals.
+  double reach(const Vertices& X, double diag) const {
+    double r = 0.0;
+    for (Eigen::Index v = 0; v < X.rows(); ++v)
+      for (int k = 0; k < 3; ++k) r = std::max(r, std::abs(X(v, k) - centre(k)));
+    return r / diag;
+  }
 
   bool carry_rotations(const Vec4d* from, const Vec4d* to);
 };
@@ -391,6 +409,7 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
   const V3 lo = vertices.colwise().minCoeff(), hi = vertices.colwise().maxCoeff();
   diag_ = n > 0 ? (hi - lo).norm() : 0.0;
   if (!(diag_ > 0.0)) diag_ = 1.0;
+  d.centre = n > 0 ? V3(0.5 * (lo + hi)) : V3::Zero();
 
   // Interior manifold edges: exactly one face pair shares them.
   auto edge_index = [&](int a, int b) {
@@ -513,6 +532,11 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
     for (int k = 0; k < 3; ++k) all_dir[3 * static_cast<size_t>(e) + k] = dir(k);
     t.c_rho = options.stretch * w * kappa_(e);
     t.rest_len = rl;
+    if (!(t.c_rho <= kMaxStiffness && t.c_sig <= kMaxStiffness)) {
+      throw std::invalid_argument(
+          "stretch, bend, edge_weight: their products exceed 1e300 (only their ratios matter: "
+          "scale them down)");
+    }
   }
 
   // Passive vertices: in no face, or in a part (through edges) without a constrained vertex.
@@ -750,6 +774,15 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   }
   if (!options.gravity.allFinite())
     throw std::invalid_argument("gravity: contains NaN or infinity");
+  const char* far =
+      " lies beyond 1e50 mesh sizes of the rest mesh: rescale the mesh (only its "
+      "shape matters)";
+  if (!(d.reach(constrained_positions, diag_) <= kMaxReach)) {
+    throw std::invalid_argument(std::string("constrained_positions:") + far);
+  }
+  if (initial && !(d.reach(*initial, diag_) <= kMaxReach)) {
+    throw std::invalid_argument(std::string("initial:") + far);
+  }
 
   const std::lock_guard<std::mutex> lock(d.busy);
   const ParkWorkersOnExit park;
@@ -866,14 +899,19 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     ++it;
     if (move < stop) break;
   }
-  last_iterations_ = it;
-  last_move_ = move / diag_;
-
   Vertices out(d.n, 3);
   for (int v = 0; v < d.n; ++v) {
     const Vec4d& p = cur[d.slot[v]];
     out.row(v) << p[0], p[1], p[2];
   }
+  // E.g. gravity far too strong for the stiffness: refused, and the call changes nothing.
+  if (!(std::isfinite(move) && d.reach(out, diag_) <= kMaxReach)) {
+    throw std::runtime_error(
+        "the iteration left the range the solver represents (1e50 mesh sizes around the rest "
+        "mesh): rescale the mesh, or weaken gravity");
+  }
+  last_iterations_ = it;
+  last_move_ = move / diag_;
   return out;
 }
 

@@ -528,6 +528,13 @@ TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
   o.direction = Vertices::Ones(V.rows(), 3);
   o.direction(2, 1) = std::nan("");
   EXPECT_THROW(make(c, o), std::invalid_argument);
+  // stiffness times weight beyond 1e300 (each alone may be that large)
+  o = ok;
+  o.stretch = 1e300;
+  o.bend = 1e300;
+  EXPECT_NO_THROW(make(c, o));
+  o.edge_weight = Eigen::VectorXd::Constant(mesh_edges(F).rows(), 10.0);
+  EXPECT_THROW(make(c, o), std::invalid_argument);
   // a flat sheet with stretch 0 and one constrained vertex is not determined
   o = ok;
   o.stretch = 0.0;
@@ -566,6 +573,23 @@ TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
   s = iterations(2);
   s.gravity << 0, std::nan(""), 0;
   EXPECT_THROW(d.solve(rows_of(V, c), s), std::invalid_argument);
+  // positions beyond 1e50 mesh sizes of the rest mesh, as targets or as the start
+  Vertices far = rows_of(V, c);
+  far(2, 0) += 1e52 * d.diagonal();
+  EXPECT_THROW(d.solve(far, iterations(2)), std::invalid_argument);
+  far = rows_of(V, c);
+  far(2, 0) += 0.9e50 * d.diagonal();
+  EXPECT_NO_THROW(d.solve(far, iterations(2)));
+  Vertices far_start = V;
+  far_start(7, 2) = -1e200;
+  EXPECT_THROW(d.solve(rows_of(V, c), iterations(2), &far_start), std::invalid_argument);
+  // gravity that throws the iterate out of that range: refused after the fact
+  d.solve(rows_of(V, c), iterations(2));
+  const double move = d.last_move();
+  s = iterations(3);
+  s.gravity << 0, 0, -1e300;
+  EXPECT_THROW(d.solve(rows_of(V, c), s), std::runtime_error);
+  EXPECT_EQ(d.last_move(), move);
   EXPECT_EQ(d.last_iterations(), 2);  // the failed calls changed nothing
   EXPECT_EQ(max_diff(d.solve(rows_of(V, c), iterations(2)), X), 0.0);
 }
