@@ -103,13 +103,19 @@ class EdgeDeformer:
             stiffness: the energy gains -sum_i <g, v_i> (Eq. 8).
         initial : (n,3) float warm start (e.g. the previous result), or None for the rest mesh.
             Iterations compose: solve(x, iterations=a+b) equals solving ``b`` iterations from the
-            result of ``a``.
+            result of ``a``. When an anchor (constrained vertices joined by edges) turns by more
+            than 15 degrees from here to ``constrained_positions``, the first iteration carries
+            the anchors' fitted rotations over the mesh (docs/edge.md), so a large turn from
+            rest does not fold the mesh the wrong way round.
         relaxation : float in (0,1], omega: each iteration moves the free vertices by omega
-            times the E-M step (1 is the paper's iteration). The fixed points are the same; a
-            value below 1 (e.g. 0.8) damps the two-cycles the plain iteration can fall into
-            when constraints are far from rest (docs/edge.md).
+            times the E-M step (1 is the paper's iteration; a carried first step is taken in
+            full). The fixed points are the same; a value below 1 (e.g. 0.8) damps the
+            two-cycles the plain iteration can fall into when constraints are far from rest.
 
         ``last_iterations`` and ``last_move`` report the iterations run and the last move.
+        Positions beyond 1e50 rest diagonals of the rest mesh raise ValueError; a result that
+        would leave that range (gravity far too strong) raises RuntimeError. Either way the call
+        changes nothing.
         """
         x = as_vertices(constrained_positions, "constrained_positions", rows=len(self._constrained))
         its = as_count(iterations, "iterations", 1)

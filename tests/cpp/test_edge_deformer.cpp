@@ -443,55 +443,44 @@ TEST(EdgeDeformer, ThreadsAndBaselineKernelsAgree) {
   Vertices V;
   Faces F;
   bumpy_grid(90, 90, &V, &F);  // large enough for the parallel paths
-  std::vector<int> c = corners(90, 90);
-  c.push_back(45 * 91 + 45);
-  Vertices pos = rows_of(V, c);
-  pos(4, 2) += 20.0;
   EdgeDeformerOptions o;
   o.stretch = 1e-3;
-  const int threads = num_threads();
-  set_num_threads(1);
-  EdgeDeformer d(V, F, c, o);
   EdgeSolveOptions s = iterations(3);
   s.p_bend = 0.8;
-  const Vertices serial = d.solve(pos, s);
-  set_num_threads(2);
-  const Vertices parallel = d.solve(pos, s);
-  set_num_threads(threads);
-  EXPECT_GT(max_diff(serial, V), 5.0);
-  EXPECT_LT(max_diff(serial, parallel), 1e-12 * d.diagonal());
-  if (cpu_has_avx2_fma()) {
-    const bool before = set_avx2_kernels_enabled(false);
-    const Vertices base = d.solve(pos, s);
-    set_avx2_kernels_enabled(before);
-    EXPECT_LT(max_diff(serial, base), 1e-10 * d.diagonal());
-  }
-
-  // The carried first step (a turned anchor: the centre vertex and its ring) likewise.
-  std::vector<int> ca = corners(90, 90);
+  const int threads = num_threads();
+  auto check = [&](const std::vector<int>& c, const Vertices& pos) {
+    set_num_threads(1);
+    EdgeDeformer d(V, F, c, o);
+    const Vertices serial = d.solve(pos, s);
+    set_num_threads(2);
+    const Vertices parallel = d.solve(pos, s);
+    set_num_threads(threads);
+    EXPECT_GT(max_diff(serial, V), 5.0);
+    EXPECT_LT(max_diff(serial, parallel), 1e-12 * d.diagonal());
+    if (cpu_has_avx2_fma()) {
+      const bool before = set_avx2_kernels_enabled(false);
+      const Vertices base = d.solve(pos, s);
+      set_avx2_kernels_enabled(before);
+      EXPECT_LT(max_diff(serial, base), 1e-10 * d.diagonal());
+    }
+  };
   const int centre = 45 * 91 + 45;
-  for (int dv : {0, -1, 1, -91, 91, -92, 92, -90, 90}) ca.push_back(centre + dv);
+  std::vector<int> c = corners(90, 90);
+  c.push_back(centre);
+  Vertices pos = rows_of(V, c);
+  pos(4, 2) += 20.0;
+  check(c, pos);
+  // The carried first step: a turned anchor (the centre vertex and its ring).
+  c.pop_back();
+  for (int dv : {0, -1, 1, -91, 91, -92, 92, -90, 90}) c.push_back(centre + dv);
   const Eigen::Matrix3d R =
       Eigen::AngleAxisd(1.2, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
-  Vertices pa = rows_of(V, ca);
-  for (Eigen::Index k = 4; k < pa.rows(); ++k) {
-    pa.row(k) = (pa.row(k) - V.row(centre)) * R.transpose() + V.row(centre);
-    pa(k, 2) += 10.0;
+  pos = rows_of(V, c);
+  for (Eigen::Index k = 4; k < pos.rows(); ++k) {
+    pos.row(k) = (pos.row(k) - V.row(centre)) * R.transpose() + V.row(centre);
+    pos(k, 2) += 10.0;
   }
-  set_num_threads(1);
-  EdgeDeformer da(V, F, ca, o);
-  const Vertices serial_a = da.solve(pa, s);
-  set_num_threads(2);
-  const Vertices parallel_a = da.solve(pa, s);
-  set_num_threads(threads);
-  EXPECT_GT(max_diff(serial_a, V), 5.0);
-  EXPECT_LT(max_diff(serial_a, parallel_a), 1e-12 * da.diagonal());
-  if (cpu_has_avx2_fma()) {
-    const bool before = set_avx2_kernels_enabled(false);
-    const Vertices base = da.solve(pa, s);
-    set_avx2_kernels_enabled(before);
-    EXPECT_LT(max_diff(serial_a, base), 1e-10 * da.diagonal());
-  }
+  check(c, pos);
 }
 
 TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
