@@ -11,6 +11,7 @@
 #include <cmath>
 #include <functional>
 #include <map>
+#include <mutex>
 #include <numeric>
 #include <queue>
 #include <stdexcept>
@@ -1061,7 +1062,9 @@ struct PoseSpaceDeformer::Impl {
   RowMatrix detail;
   std::vector<int> vf_ptr, vf_idx;  // coarse vertex -> coarse faces
   Eigen::VectorXd larea;            // coarse face areas: slivers count little in vertex rotations
-  // Last call.
+  // Last call. deform() holds `busy` for its whole run: the solvers' per-call workspaces, the
+  // lazily built frame solver and these results are shared by every call on this deformer.
+  mutable std::mutex busy;
   mutable Eigen::VectorXd last_weights;
   mutable PoseSpaceStats stats;
 
@@ -1921,6 +1924,7 @@ Vertices PoseSpaceDeformer::deform(const std::vector<Vertices>& handle_positions
                                    const Matrix3Array* rotations,
                                    const Eigen::Matrix4d* frame_transform) const {
   impl_->check_inputs(handle_positions, rotations, frame_transform);
+  const std::lock_guard<std::mutex> lock(impl_->busy);
   return impl_->run(handle_positions, rotations, frame_transform);
 }
 
@@ -1931,8 +1935,14 @@ Eigen::VectorXd PoseSpaceDeformer::pose_weights(const std::vector<Vertices>& han
   return impl_->weights(impl_->concat_targets(handle_positions), rotations, frame_transform);
 }
 
-const Eigen::VectorXd& PoseSpaceDeformer::example_weights() const { return impl_->last_weights; }
-const PoseSpaceStats& PoseSpaceDeformer::last_stats() const { return impl_->stats; }
+Eigen::VectorXd PoseSpaceDeformer::example_weights() const {
+  const std::lock_guard<std::mutex> lock(impl_->busy);
+  return impl_->last_weights;
+}
+PoseSpaceStats PoseSpaceDeformer::last_stats() const {
+  const std::lock_guard<std::mutex> lock(impl_->busy);
+  return impl_->stats;
+}
 int PoseSpaceDeformer::num_examples() const { return impl_->p; }
 int PoseSpaceDeformer::num_handles() const { return impl_->h; }
 int PoseSpaceDeformer::num_rotational() const { return impl_->r; }

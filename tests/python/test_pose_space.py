@@ -509,3 +509,84 @@ def test_flat_coarse_mesh_does_not_depend_on_numbering():
     assert corner_sets(d, np.arange(len(v))) == corner_sets(d2, vp)
     X, X2 = d.deform(handle_positions(ex[1], handles)), d2.deform(handle_positions(ex[1], handles))
     assert np.abs(X[vp] - X2).max() < 1e-9 * diag(v)
+
+
+# ------------------------------------------------------------------------------ threads
+
+CONCURRENT = """
+import threading
+import numpy as np
+import matdeform as md
+from matdeform import shapes
+
+md.set_num_threads(2)  # the parallel loops too, also on a one-core machine
+v, f = shapes.tube_with_faces(30000, aspect=8.0)
+L = v[:, 0].max()
+x = v[:, 0] / L
+ex = []
+for k, (bend, twist) in enumerate([(0.0, 0.0), (1.2, 0.5), (-0.9, -0.8), (0.4, 1.5)]):
+    p = v.copy()
+    c, s = np.cos(twist * x), np.sin(twist * x)
+    p[:, 1], p[:, 2] = c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]
+    if bend:
+        rho = L / bend
+        a, rr = p[:, 0] / rho, rho - p[:, 1]
+        p[:, 0], p[:, 1] = rr * np.sin(a), rho - rr * np.cos(a)
+    ex.append(p)
+ex = np.stack(ex)
+handles = [np.flatnonzero(np.abs(x - c) < 0.02) for c in (0.0, 0.5, 1.0)]
+inside = np.isin(f, handles[0]).all(axis=1)
+frame = int(np.flatnonzero(inside)[0])
+rng = np.random.default_rng(0)
+calls = []
+for i in range(10):
+    w = rng.dirichlet(np.ones(len(ex)))
+    shape = np.einsum("k,kvc->vc", w, ex)
+    hp = [shape[h] + rng.normal(scale=0.05, size=(len(h), 3)) for h in handles]
+    T = None
+    if i % 2:  # a frame transform: the first such call builds a solver lazily
+        T = np.eye(4)
+        a = rng.normal(size=3)
+        T[:3, :3] = md.transform_exp(np.zeros((3, 3)), 0.3 * a / np.linalg.norm(a))
+        T[:3, 3] = rng.normal(size=3)
+    calls.append((hp, T))
+
+def make():
+    return md.PoseSpaceDeformer(v, f, ex, handles, frame=frame)
+
+# Expected results from a deformer of their own; the shared one is only ever used concurrently.
+ref = make()
+expect = [ref.deform(hp, frame_transform=T) for hp, T in calls]
+expect_w = [ref.pose_weights(hp, frame_transform=T) for hp, T in calls]
+shared = make()
+wrong = [0, 0]
+
+def work(t):
+    for rep in range(2):
+        for i in range(len(calls)):
+            j = (i + 5 * t) % len(calls)
+            hp, T = calls[j]
+            X = shared.deform(hp, frame_transform=T)
+            wrong[t] += not np.array_equal(X, expect[j])
+            wrong[t] += not np.array_equal(shared.pose_weights(hp, frame_transform=T), expect_w[j])
+            w = shared.example_weights  # some call's weights, never a torn mix
+            wrong[t] += not any(np.array_equal(w, e) for e in expect_w)
+
+threads = [threading.Thread(target=work, args=(t,)) for t in range(2)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print("wrong", sum(wrong))
+"""
+
+
+def test_one_deformer_shared_by_two_threads_gives_serial_results():
+    """deform() releases the GIL: two threads calling one deformer must get bit-for-bit the
+    results of serial calls (a fresh interpreter with a timeout, so a deadlock fails)."""
+    from isolated import run_isolated
+
+    rc, out, err = run_isolated(CONCURRENT, timeout=600)
+    assert rc is not None, "concurrent deform() calls hung"
+    assert rc == 0, f"crashed or failed (rc {rc}): {err[-2000:]}"
+    assert out.split()[-2:] == ["wrong", "0"], out
