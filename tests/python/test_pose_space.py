@@ -335,7 +335,7 @@ def test_bad_input_names_the_argument(scene):
         P(v, f, ex, handles, frozen=[0, 0])
     with pytest.raises(ValueError, match=r"handles\[0\]: vertex \d+ belongs to a frozen face"):
         P(v, f, ex, handles, frozen=[0])
-    with pytest.raises(ValueError, match="position_weight: expected a finite value > 0"):
+    with pytest.raises(ValueError, match=r"position_weight: expected a finite value in \(0, inf\)"):
         P(v, f, ex, handles, position_weight=0.0)
     with pytest.raises(ValueError, match="rotation_energy: expected"):
         P(v, f, ex, handles, rotation_energy="exact")
@@ -371,6 +371,73 @@ def test_bad_input_names_the_argument(scene):
     # nothing changed: the deformer still works
     X = d.deform(handle_positions(ex[0], handles))
     assert np.abs(X - ex[0]).max() < 1e-6 * diag(v)
+
+
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        (
+            "rotation_iterations",
+            2**31,
+            r"rotation_iterations: expected an integer in \[1, 2147483647\]",
+        ),
+        ("gauge_steps", 2**31, r"gauge_steps: expected an integer in \[1, "),
+        ("transfer_neighbors", 2**40, r"transfer_neighbors: expected an integer in \[1, "),
+        ("rotation_iterations", 0, r"rotation_iterations: expected an integer in \[1, "),
+        ("gauge_steps", 2.0, "gauge_steps: expected an integer in .* got float"),
+        ("transfer_neighbors", True, "transfer_neighbors: expected an integer in .* got bool"),
+        (
+            "position_weight",
+            "1",
+            r"position_weight: expected a finite value in \(0, inf\), got str",
+        ),
+        ("position_weight", np.inf, r"position_weight: expected a finite value in \(0, inf\)"),
+        ("rotation_weight", None, r"rotation_weight: expected a finite value in \(0, inf\)"),
+        ("joint_weight", -1.0, r"joint_weight: expected a finite value in \(0, inf\)"),
+        ("rotation_tolerance", None, r"rotation_tolerance: expected a finite value in \(0, 1\)"),
+        ("rotation_tolerance", 1.0, r"rotation_tolerance: expected a finite value in \(0, 1\)"),
+        ("reliability_angle", None, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("reliability_angle", np.nan, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("reliability_angle", 0.0, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("orientation_weight", [1.0], r"orientation_weight: expected a finite value in \[0, inf\)"),
+        ("weight_regularization", -0.1, r"weight_regularization: expected a finite value in \[0, "),
+        ("handle_rotations", "no", "handle_rotations: expected True or False, got str"),
+        ("convex_weights", None, "convex_weights: expected True or False"),
+        ("area_weights", 1, "area_weights: expected True or False, got int"),
+        ("rotation_energy", None, "rotation_energy: expected 'chordal' or 'geodesic', got None"),
+    ],
+)
+def test_bad_options_raise_value_error_naming_the_option(scene, option, value, message):
+    """Every option out of its range or of the wrong type is a ValueError naming it (counts past
+    a C int and strings used to reach pybind or numpy and raise TypeError)."""
+    v, f, ex, handles = scene
+    with pytest.raises(ValueError, match=message):
+        md.PoseSpaceDeformer(v, f, ex, handles, **{option: value})
+
+
+def test_options_accept_numpy_scalars_and_inf_reliability(scene):
+    v, f, ex, handles = scene
+    a = md.PoseSpaceDeformer(
+        v,
+        f,
+        ex,
+        handles,
+        rotation_iterations=np.int64(20),
+        position_weight=np.float32(50),
+        reliability_angle=np.inf,
+        handle_rotations=np.bool_(True),
+    )
+    b = md.PoseSpaceDeformer(
+        v,
+        f,
+        ex,
+        handles,
+        rotation_iterations=20,
+        position_weight=50.0,
+        reliability_angle=float("inf"),
+    )
+    hp = in_between(ex, handles)
+    assert np.array_equal(a.deform(hp), b.deform(hp))
 
 
 def test_core_rechecks_indices(scene):
