@@ -14,6 +14,7 @@
 #include <mutex>
 #include <numeric>
 #include <queue>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -40,6 +41,15 @@ constexpr double kPi = 3.14159265358979323846;
 // on one).
 constexpr int kParallelMin = 16384;
 constexpr int kTasks = 8;
+// Positions (examples, handle targets, the frame) lie within this many bounding-box diagonals
+// of the rest mesh's centre. Then every product the solve forms (squared lengths of pose
+// vectors, cross products of target edges, the Kabsch cross-covariance) stays below ~1e200;
+// far beyond, they overflow to inf and NaN (handles scaled by 1e155 did).
+constexpr double kMaxReach = 1e50;
+// Within that reach a non-finite result is a defect, but it is never returned.
+constexpr const char* kOverflow =
+    "handle_positions: the solve overflowed (a non-finite value); rescale the mesh and the "
+    "positions (only shapes matter)";
 
 double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
@@ -49,6 +59,12 @@ double ms_since(Clock::time_point t0) {
 
 std::string item(const char* name, size_t i) {
   return std::string(name) + "[" + std::to_string(i) + "]";
+}
+
+std::string number(double x) {
+  std::ostringstream s;
+  s << x;
+  return s.str();
 }
 
 // Nearest proper rotation in the Frobenius norm (the rotation factor of the polar
@@ -200,23 +216,34 @@ class Interpolator {
     // sum a = 0, so the smoothing ridge is subtracted. It pulls the weights at the examples
     // towards mixtures and keeps the partition of unity.
     S.topLeftCorner(p, p).diagonal().array() -= regularization * big;
-    S.topRightCorner(p, 1).setOnes();
-    S.bottomLeftCorner(1, p).setOnes();
+    // The constant's column scaled like Phi (b = big * c): poses far apart (an example 1e40
+    // times the others) otherwise leave a pivot below the rank threshold.
+    S.topRightCorner(p, 1).setConstant(big);
+    S.bottomLeftCorner(1, p).setConstant(big);
     Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(p + 1, p);
     rhs.topRows(p).setIdentity();
     Eigen::FullPivLU<Eigen::MatrixXd> lu(S);
     if (!lu.isInvertible()) fail("examples: the pose interpolation system is singular");
     const Eigen::MatrixXd sol = lu.solve(rhs);
     A_ = sol.topRows(p);
-    b_ = sol.row(p).transpose();
+    b_ = big * sol.row(p).transpose();
   }
 
   Eigen::VectorXd operator()(const Eigen::VectorXd& x) const {
     const Eigen::Index p = centers_.rows();
     if (p == 0) return Eigen::VectorXd();
     if (p == 1) return Eigen::VectorXd::Ones(1);
+    // A's columns sum to 0, so phi may be shifted by |x - P_0|. The shifted values are formed
+    // without cancellation, |x - P_l| - |x - P_0| = (P_0 - P_l).(2x - P_l - P_0) / (sum), so
+    // far from the examples (|x| >> |P|) the weights keep their sum 1 and their limits.
+    const Eigen::VectorXd p0 = centers_.row(0).transpose();
+    const double phi0 = (x - p0).norm();
     Eigen::VectorXd phi(p);
-    for (Eigen::Index l = 0; l < p; ++l) phi(l) = (centers_.row(l).transpose() - x).norm();
+    for (Eigen::Index l = 0; l < p; ++l) {
+      const Eigen::VectorXd pl = centers_.row(l).transpose();
+      const double den = (x - pl).norm() + phi0;
+      phi(l) = den > 0.0 ? (p0 - pl).dot(2.0 * x - pl - p0) / den : 0.0;
+    }
     Eigen::VectorXd w = A_.transpose() * phi + b_;
     if (convex_) {
       w = w.cwiseMax(0.0);
@@ -1020,6 +1047,7 @@ struct PoseSpaceDeformer::Impl {
   Faces faces;
   int n = 0, m = 0, p = 0, h = 0, r = 0;
   double diag = 1.0;
+  Vec3 center = Vec3::Zero();  // of the rest bounding box
   PoseSpaceOptions opt;
   std::vector<std::vector<int>> handles;
   std::vector<int> handle_all;       // concatenated handle vertices
@@ -1136,6 +1164,23 @@ struct PoseSpaceDeformer::Impl {
     return face_rotation(Vr.inverse(), X.row(faces(f, 0)), X.row(faces(f, 1)), X.row(faces(f, 2)));
   }
 
+  // Distance (max norm) of point x from the rest centre, when beyond kMaxReach diagonals.
+  std::optional<double> beyond_reach(const Vec3& x) const {
+    const double d = (x - center).cwiseAbs().maxCoeff();
+    if (d > kMaxReach * diag) return d;
+    return std::nullopt;
+  }
+  // Throws for the first row of X beyond reach, naming `what`.
+  void check_reach(const Vertices& X, const std::string& what) const {
+    for (Eigen::Index i = 0; i < X.rows(); ++i) {
+      if (const auto d = beyond_reach(X.row(i).transpose())) {
+        fail(what + ": vertex " + std::to_string(i) + " lies " + number(*d) +
+             " from the rest mesh, over " + number(kMaxReach) +
+             " times its size; rescale the mesh and the positions (only shapes matter)");
+      }
+    }
+  }
+
   void check_inputs(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
                     const Eigen::Matrix4d* frame_transform) const {
     if (static_cast<int>(hp.size()) != h) {
@@ -1149,6 +1194,7 @@ struct PoseSpaceDeformer::Impl {
              std::to_string(hp[j].rows()) + ",3)");
       }
       if (!hp[j].allFinite()) fail(item("handle_positions", j) + ": contains NaN or infinity");
+      check_reach(hp[j], item("handle_positions", j));
     }
     if (rotations) {
       if (static_cast<int>(rotations->size()) != r) {
@@ -1171,6 +1217,11 @@ struct PoseSpaceDeformer::Impl {
         fail(
             "frame_transform: expected a rigid 4x4 transform (rotation, translation, bottom row "
             "0 0 0 1)");
+      }
+      if (const auto d = beyond_reach(Rf * frame_rest_centroid + T.topRightCorner<3, 1>())) {
+        fail("frame_transform: moves the frame face " + number(*d) + " from the rest mesh, over " +
+             number(kMaxReach) +
+             " times its size; rescale the mesh and the positions (only shapes matter)");
       }
     } else if (frame >= 0 && p >= 2 &&
                (frame_in_handles[0] < 0 || frame_in_handles[1] < 0 || frame_in_handles[2] < 0)) {
@@ -1374,6 +1425,9 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
   }
   I.diag = (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()).norm();
+  I.center = (vertices.colwise().minCoeff() +
+              0.5 * (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()))
+                 .transpose();
   if (!(options.position_weight > 0.0) || !std::isfinite(options.position_weight)) {
     fail("position_weight: expected a finite value > 0");
   }
@@ -1404,6 +1458,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
            std::to_string(examples[k].rows()) + ",3)");
     }
     if (!examples[k].allFinite()) fail(item("examples", k) + ": contains NaN or infinity");
+    I.check_reach(examples[k], item("examples", k));
   }
 
   // Handles: non-empty, in range, unique, disjoint.
@@ -1549,6 +1604,13 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     if (target < 4 || target >= m) {
       fail("coarse: expected a face count in [4, " + std::to_string(m) + "), got " +
            std::to_string(target));
+    }
+    // meshopt takes float positions: beyond ~3e38 they are infinite.
+    const double far = vertices.cwiseAbs().maxCoeff();
+    if (!(far < 1e37)) {
+      fail("coarse: the mesh lies " + number(far) +
+           " from the origin and the simplifier works in single precision; move the mesh nearer "
+           "the origin or solve at full resolution");
     }
     I.multires = true;
     coarse_mesh(vertices, faces, target, I.diag, &I.lvertices, &I.lrest, &I.lfaces);
@@ -1794,6 +1856,7 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   const Vertices targets = concat_targets(hp);
   const Eigen::VectorXd w = weights(targets, rotations, frame_transform);
   stats.ms_weights = ms_since(t0);
+  if (!w.allFinite()) fail(kOverflow);
 
   t0 = Clock::now();
   Matrix3Array Q, S;
@@ -1897,8 +1960,11 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   (with_frame ? pos_b_frame : pos_b)->solve(T, nrows ? &row_t : nullptr, &y);
   stats.ms_positions += ms_since(t0);
 
-  last_weights = w;
-  if (!multires) return y;
+  if (!multires) {
+    if (!y.allFinite()) fail(kOverflow);
+    last_weights = w;
+    return y;
+  }
 
   t0 = Clock::now();
   Vertices X(n, 3);
@@ -1917,6 +1983,8 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
     parallel_ranges(n, kParallelMin / 2, kTasks, body);
   }
   stats.ms_transfer = ms_since(t0);
+  if (!X.allFinite()) fail(kOverflow);
+  last_weights = w;
   return X;
 }
 
@@ -1925,14 +1993,23 @@ Vertices PoseSpaceDeformer::deform(const std::vector<Vertices>& handle_positions
                                    const Eigen::Matrix4d* frame_transform) const {
   impl_->check_inputs(handle_positions, rotations, frame_transform);
   const std::lock_guard<std::mutex> lock(impl_->busy);
-  return impl_->run(handle_positions, rotations, frame_transform);
+  const PoseSpaceStats kept = impl_->stats;
+  try {
+    return impl_->run(handle_positions, rotations, frame_transform);
+  } catch (...) {
+    impl_->stats = kept;  // a refused call changes nothing
+    throw;
+  }
 }
 
 Eigen::VectorXd PoseSpaceDeformer::pose_weights(const std::vector<Vertices>& handle_positions,
                                                 const Matrix3Array* rotations,
                                                 const Eigen::Matrix4d* frame_transform) const {
   impl_->check_inputs(handle_positions, rotations, frame_transform);
-  return impl_->weights(impl_->concat_targets(handle_positions), rotations, frame_transform);
+  Eigen::VectorXd w =
+      impl_->weights(impl_->concat_targets(handle_positions), rotations, frame_transform);
+  if (!w.allFinite()) fail(kOverflow);
+  return w;
 }
 
 Eigen::VectorXd PoseSpaceDeformer::example_weights() const {

@@ -15,6 +15,7 @@ from ._validate import (
     as_faces,
     as_index_set,
     as_int_array,
+    as_mesh_vertices,
     as_real,
     as_vertices,
 )
@@ -105,7 +106,7 @@ class PoseSpaceDeformer:
         area_weights: bool = False,
         rotation_tolerance: float = 1e-6,
     ):
-        v = as_vertices(vertices)
+        v = as_mesh_vertices(vertices)
         f = as_faces(faces, v.shape[0])
         n, m = v.shape[0], f.shape[0]
         ex = _as_examples(examples, n)

@@ -535,3 +535,35 @@ TEST(PoseSpace, BadInputThrows) {
   Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
   EXPECT_THROW(d.deform(hp, nullptr, &T), std::invalid_argument);  // no frame face
 }
+
+// Handle targets or examples so far out that squares overflow gave NaN positions and weights;
+// now they throw and the deformer keeps its last results. Within the reach (1e50 mesh sizes)
+// far targets give finite weights that still sum to 1 (the shifted kernel values).
+TEST(PoseSpace, PositionsBeyondDoubleRangeThrowInsteadOfNan) {
+  Bar bar(10);
+  const std::vector<Vertices> ex = {bar.V, bent(bar.V, 1.0, bar.length)};
+  PoseSpaceDeformer d(bar.V, bar.F, ex, bar.handles);
+  const std::vector<Vertices> hp = positions_of(bent(bar.V, 0.5, bar.length), bar.handles);
+  const Vertices X0 = d.deform(hp, nullptr);
+  const Eigen::VectorXd w0 = d.example_weights();
+  for (const double s : {1e155, 1e300}) {
+    std::vector<Vertices> scaled = hp, moved = hp;
+    for (Vertices& p : scaled) p *= s;
+    for (Vertices& p : moved) p.array() += s;
+    EXPECT_THROW(d.deform(scaled, nullptr), std::invalid_argument);
+    EXPECT_THROW(d.deform(moved, nullptr), std::invalid_argument);
+    EXPECT_THROW(d.pose_weights(moved, nullptr), std::invalid_argument);
+  }
+  EXPECT_EQ(d.example_weights(), w0);
+  EXPECT_EQ(d.deform(hp, nullptr), X0);
+  std::vector<Vertices> far = hp;
+  for (Vertices& p : far) p *= 1e40;
+  const Vertices Xf = d.deform(far, nullptr);
+  const Eigen::VectorXd wf = d.example_weights();
+  EXPECT_TRUE(Xf.allFinite());
+  EXPECT_NEAR(wf.sum(), 1.0, 1e-12);
+  EXPECT_LT(wf.cwiseAbs().maxCoeff(), 3.0);
+  std::vector<Vertices> huge = ex;
+  huge[1] *= 1e155;
+  EXPECT_THROW(PoseSpaceDeformer(bar.V, bar.F, huge, bar.handles), std::invalid_argument);
+}

@@ -440,6 +440,67 @@ def test_options_accept_numpy_scalars_and_inf_reliability(scene):
     assert np.array_equal(a.deform(hp), b.deform(hp))
 
 
+@pytest.mark.parametrize("kind", ["scaled by 1e155", "moved by 1e200"])
+def test_handles_beyond_double_range_are_refused_not_nan(scene, kind):
+    """Handle targets rescaled or moved so far that squares overflow used to give NaN positions
+    and NaN example weights. Now a ValueError says to rescale, and nothing changes."""
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles, frame=0)
+    good = in_between(ex, handles)
+    X0, w0 = d.deform(good), d.example_weights
+    far = [p * 1e155 if kind.startswith("scaled") else p + 1e200 for p in good]
+    for call in (d.deform, d.pose_weights):
+        with pytest.raises(ValueError, match=r"handle_positions\[0\]: vertex 0 lies .* rescale"):
+            call(far)
+    with pytest.raises(ValueError, match="frame_transform: .* rescale"):
+        d.deform(good, frame_transform=np.diag([1.0, 1, 1, 1]) + np.eye(4, k=3) * 1e200)
+    assert np.array_equal(d.example_weights, w0)
+    assert np.array_equal(d.deform(good), X0)
+
+
+@pytest.mark.parametrize("scale", [1e20, 1e45])
+def test_far_but_representable_handles_give_finite_results(scene, scale):
+    """Up to the limit (1e50 mesh sizes from the rest mesh) everything stays finite: scaled
+    handles are far outside the examples, so the weights are bounded constants summing to 1."""
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles)
+    hp = [p * scale for p in in_between(ex, handles)]
+    X = d.deform(hp)
+    w = d.example_weights
+    assert np.isfinite(X).all() and np.isfinite(w).all()
+    assert abs(w.sum() - 1) < 1e-12 and np.abs(w).max() < 3
+    # the handles still pull their vertices: the tip handle's centroid lands near its target
+    tip = handles[2]
+    assert np.linalg.norm(X[tip].mean(0) - hp[2].mean(0)) < 1e-3 * scale * diag(v)
+
+
+def test_examples_beyond_double_range_are_refused_and_large_ones_work(scene):
+    v, f, ex, handles = scene
+    with pytest.raises(ValueError, match=r"examples\[1\]: vertex \d+ lies .* rescale"):
+        md.PoseSpaceDeformer(v, f, np.stack([ex[0], ex[1] * 1e155]), handles)
+    # A huge but representable example: the pose system is scaled, so the weights are still
+    # exact at the examples (its pose vector is 1e40 times the other's), the big example is
+    # reproduced, and everything is finite (at the small one, a weight of 1e-17 on the big
+    # example is already 1e23 units: no meaningful use mixes such scales).
+    big = np.stack([ex[0], ex[1] * 1e40])
+    d = md.PoseSpaceDeformer(v, f, big, handles)
+    for k in range(2):
+        X = d.deform(handle_positions(big[k], handles))
+        assert np.allclose(d.example_weights, np.eye(2)[k], atol=1e-12)
+        assert np.isfinite(X).all()
+    assert np.abs(X - big[1]).max() < 1e-6 * diag(big[1])
+
+
+def test_multiresolution_far_from_the_origin_is_refused():
+    """The simplifier works in single precision: coordinates past ~1e38 would be infinite."""
+    v, f = shapes.tube(length=10, radius=1, n_around=12, n_along=30)
+    w = v * 1e35 + 1e40
+    with pytest.raises(ValueError, match="coarse: .* single precision"):
+        md.PoseSpaceDeformer(w, f, [], [np.arange(12)], coarse=200)
+    d = md.PoseSpaceDeformer(w, f, [], [np.arange(12)])  # single resolution works
+    assert np.isfinite(d.deform([w[:12]])).all()
+
+
 def test_core_rechecks_indices(scene):
     """The bindings skip the Python checks; the core must still refuse, never crash."""
     v, f, ex, handles = scene
