@@ -1650,25 +1650,17 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
     AnchorList anchors(ln);
     for (int c = 0; c < ln; ++c) anchors[c] = {I.lvertices[c]};
-    const RowMatrix W = harmonic_weights(n, edges, phi, anchors);
-    const int K = std::min(options.transfer_neighbors, ln);
-    I.tr_ptr.assign(1, 0);
-    std::vector<int> cols(ln);
+    // The largest few per vertex, renormalised (the dense (n, ln) matrix would take 8 n ln
+    // bytes: 1.9 GB at a million faces and 1000 coarse faces, several copies at its peak).
+    const SparseWeights W =
+        largest_harmonic_weights(n, edges, phi, anchors, options.transfer_neighbors);
+    I.tr_ptr = W.ptr;
+    I.tr_idx = W.idx;
+    I.tr_w = W.w;
     for (int v = 0; v < n; ++v) {
-      std::iota(cols.begin(), cols.end(), 0);
-      std::partial_sort(cols.begin(), cols.begin() + K, cols.end(), [&](int a, int b) {
-        return W(v, a) != W(v, b) ? W(v, a) > W(v, b) : a < b;
-      });
       double sum = 0.0;
-      for (int k = 0; k < K; ++k) {
-        if (W(v, cols[k]) > 0.0) sum += W(v, cols[k]);
-      }
-      for (int k = 0; k < K; ++k) {
-        if (!(W(v, cols[k]) > 0.0)) continue;
-        I.tr_idx.push_back(cols[k]);
-        I.tr_w.push_back(W(v, cols[k]) / sum);
-      }
-      I.tr_ptr.push_back(static_cast<int>(I.tr_idx.size()));
+      for (int k = I.tr_ptr[v]; k < I.tr_ptr[v + 1]; ++k) sum += I.tr_w[k];
+      for (int k = I.tr_ptr[v]; k < I.tr_ptr[v + 1]; ++k) I.tr_w[k] /= sum;
     }
     I.larea = double_areas(I.lrest, I.lfaces);
     std::vector<int> cnt(ln + 1, 0);
