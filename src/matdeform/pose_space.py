@@ -33,7 +33,8 @@ class PoseSpaceDeformer:
     Parameters
     ----------
     vertices : (n,3) float, rest positions (any length unit; the output uses the same unit).
-    faces : (m,3) int triangles. One connected surface, every vertex used, no zero-area face.
+    faces : (m,3) int triangles. Every vertex used, no zero-area face. A connected part with
+        no handle vertex, frozen face, frame face or rotational face stays exactly at rest.
     examples : (p,n,3) float, p >= 0 example poses with the connectivity of ``faces`` (a list of
         (n,3) arrays works too). With p = 0 this is a plain rotation-invariant handle deformer.
     handles : list of h int arrays of vertex indices (non-empty, disjoint): translational

@@ -283,6 +283,79 @@ def test_relabelling_permutes_the_result(scene):
     np.testing.assert_allclose(d.example_weights, d2.example_weights, atol=1e-12)
 
 
+def three_bars(v, f, ex):
+    """The scene's bar three times, side by side (parts 0, 1, 2), with every example applied to
+    every bar (so a free bar would visibly follow)."""
+    n = len(v)
+    shift = np.array([0.0, 3.0, 0.0])
+    V = np.vstack([v, v + shift, v + 2 * shift])
+    F = np.vstack([f, f + n, f + 2 * n])
+    EX = np.stack([np.vstack([x, x + shift, x + 2 * shift]) for x in ex])
+    return V, F, EX
+
+
+@pytest.mark.parametrize("coarse", [None, 60])
+def test_a_part_without_control_stays_exactly_at_rest(scene, coarse):
+    """Three bars: handles on bar 0, a rotational pair alone on bar 2, nothing on bar 1. Bar 1
+    is the rest bit for bit; bar 0 is what the bar alone gives (same weights: without the
+    handles' orientations the pose vector only scales with the diagonal, and the weights do not
+    depend on that scale); bar 2 follows the blend and bends by its joint, about its rest
+    centroid (nothing holds its place)."""
+    v, f, ex, handles = scene
+    n, m = len(v), len(f)
+    V, F, EX = three_bars(v, f, ex)
+    kw = dict(orientation_weight=0.0, rotation_iterations=200, rotation_tolerance=1e-12)
+    pair = [(2 * m + 5, 2 * m + m - 20)]
+    d = md.PoseSpaceDeformer(V, F, EX, handles, rotational=pair, coarse=coarse, **kw)
+    alone = md.PoseSpaceDeformer(v, f, ex, handles, coarse=coarse, **kw)
+    hp = in_between(ex, handles)
+    X = d.deform(hp)  # joint free: the pose from the handles alone
+    np.testing.assert_array_equal(X[n : 2 * n], V[n : 2 * n])
+    Xa = alone.deform(hp)
+    np.testing.assert_allclose(d.example_weights, alone.example_weights, atol=1e-12)
+    if coarse is None:
+        assert np.abs(X[:n] - Xa).max() < 1e-9 * diag(v)
+    else:  # 60 coarse faces shared by two solved bars, against 60 for the bar alone
+        assert np.abs(X[:n] - Xa).max() < 0.1 * diag(v)
+    Xj = d.deform(hp, rotation([0, 1, 1], 0.6)[None])  # joint bent
+    np.testing.assert_array_equal(Xj[n : 2 * n], V[n : 2 * n])
+    # the mean kept is that of the vertices solved for: bar 2's coarse ones with `coarse`
+    cv = d.coarse_vertices
+    kept = cv[cv >= 2 * n]
+    for Y in (X, Xj):
+        assert np.abs(Y[2 * n :] - V[2 * n :]).max() > 0.03 * diag(v)
+        assert np.abs(Y[kept].mean(0) - V[kept].mean(0)).max() < 1e-9 * diag(v)
+    assert np.abs(Xj[2 * n :] - X[2 * n :]).max() > 0.03 * diag(v)
+
+
+def test_parts_at_an_example_are_that_example_and_relabelling_permutes(scene):
+    """Handles on two of three bars moved by one rigid motion from an example: both bars are
+    that example, rigidly moved (each solved in its own rotation and translation gauge); the
+    third bar stays at rest. A random relabelling of the three-part mesh permutes the result."""
+    v, f, ex, handles = scene
+    n = len(v)
+    V, F, EX = three_bars(v, f, ex)
+    H = handles + [h + n for h in handles]
+    d = md.PoseSpaceDeformer(V, F, EX, H)
+    R, t = rotation([1, 2, 3], 0.7), np.array([1.0, -2.0, 0.5])
+    for k in range(len(EX)):
+        target = EX[k] @ R.T + t
+        X = d.deform(handle_positions(target, H))
+        np.testing.assert_allclose(d.example_weights, np.eye(len(EX))[k], atol=1e-9)
+        assert np.abs(X[: 2 * n] - target[: 2 * n]).max() < 1e-9 * diag(V)
+        np.testing.assert_array_equal(X[2 * n :], V[2 * n :])
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
+    d = md.PoseSpaceDeformer(V, F, EX, H, **kw)
+    rng = np.random.default_rng(5)
+    vp, fp = rng.permutation(len(V)), rng.permutation(len(F))  # new -> old
+    vinv = np.argsort(vp)
+    d2 = md.PoseSpaceDeformer(V[vp], vinv[F[fp]], EX[:, vp], [vinv[h] for h in H], **kw)
+    hp = in_between(EX, H)
+    X, X2 = d.deform(hp), d2.deform(hp)
+    assert np.abs(X[vp] - X2).max() < 1e-9 * diag(V)
+    np.testing.assert_array_equal(X2[vinv[2 * n :]], V[2 * n :])
+
+
 def test_frame_transform_moves_the_whole_model(scene):
     v, f, ex, handles = scene
     d = md.PoseSpaceDeformer(v, f, ex, handles, frame=2)
@@ -341,8 +414,6 @@ def test_bad_input_names_the_argument(scene):
         P(v, f, ex, handles, rotation_energy="exact")
     with pytest.raises(ValueError, match="have the same pose"):
         P(v, f, np.stack([ex[0], ex[0]]), handles)
-    with pytest.raises(ValueError, match="disconnected parts"):
-        P(np.vstack([v, v + 5]), np.vstack([f, f + len(v)]), [], [handles[0]])
     with pytest.raises(ValueError, match="not used by any face"):
         P(np.vstack([v, [[9.0, 9, 9]]]), f, [], [handles[0]])
     with pytest.raises(ValueError, match="faces: face 1 repeats a vertex"):

@@ -90,7 +90,9 @@ struct PoseSpaceStats {
 // pose_weights() run concurrently.
 class PoseSpaceDeformer {
  public:
-  // rest (n,3); faces (m,3), connected, every vertex used, no degenerate face; examples: p >= 0
+  // rest (n,3); faces (m,3), every vertex used, no degenerate face (a connected part with no
+  // handle vertex, frozen face, frame face or rotational face is output at rest, bit for bit;
+  // each other part is solved in its own rotation and translation gauge); examples: p >= 0
   // arrays (n,3) with the connectivity of rest; handles: h >= 0 disjoint non-empty vertex lists.
   // Throws std::invalid_argument on bad input.
   PoseSpaceDeformer(const Vertices& rest, const Faces& faces, const std::vector<Vertices>& examples,
