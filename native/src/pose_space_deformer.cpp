@@ -161,6 +161,28 @@ inline void pack_sym(const Mat3& S, double* o) {
   o[5] = 0.5 * (S(1, 2) + S(2, 1));
 }
 
+bool lex_less(const Vec3& a, const Vec3& b) {
+  return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+}
+
+// Centroid of a triangle summed in lexicographic order of its corners, so the same bits for any
+// corner order (a root chosen by distance must not depend on the numbering, even in ties).
+Vec3 centroid(const Vertices& V, int a, int b, int c) {
+  std::array<Vec3, 3> p = {V.row(a).transpose(), V.row(b).transpose(), V.row(c).transpose()};
+  std::sort(p.begin(), p.end(), lex_less);
+  return (p[0] + p[1] + p[2]) / 3.0;
+}
+
+// Mean of the rows `ids` of V, summed in lexicographic order of the points (the same bits for
+// any numbering).
+Vec3 canonical_mean(const Vertices& V, std::vector<int> ids) {
+  std::sort(ids.begin(), ids.end(),
+            [&](int a, int b) { return lex_less(V.row(a).transpose(), V.row(b).transpose()); });
+  Vec3 sum = Vec3::Zero();
+  for (int i : ids) sum += V.row(i).transpose();
+  return sum / static_cast<double>(std::max<size_t>(ids.size(), 1));
+}
+
 // The face whose rest centroid is nearest to `point` (ties: lexicographic centroid), a choice
 // that does not depend on the numbering of faces or vertices. With `label`, only faces f with
 // label[f] == want are candidates (-1 when there is none).
@@ -171,11 +193,9 @@ int nearest_face(const Vertices& V, const Faces& F, const Vec3& point,
   Vec3 bc = Vec3::Zero();
   for (Eigen::Index f = 0; f < F.rows(); ++f) {
     if (label && (*label)[f] != want) continue;
-    const Vec3 c = (V.row(F(f, 0)) + V.row(F(f, 1)) + V.row(F(f, 2))).transpose() / 3.0;
+    const Vec3 c = centroid(V, F(f, 0), F(f, 1), F(f, 2));
     const double d = (c - point).squaredNorm();
-    const bool better =
-        best < 0 || d < bd ||
-        (d == bd && std::lexicographical_compare(c.data(), c.data() + 3, bc.data(), bc.data() + 3));
+    const bool better = best < 0 || d < bd || (d == bd && lex_less(c, bc));
     if (better) {
       best = static_cast<int>(f);
       bd = d;
@@ -1561,11 +1581,25 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     if (pr[0] == pr[1]) fail(item("rotational", q) + ": the two faces must differ");
   }
 
-  // Parts: those with a control are solved, the others stay exactly at rest.
-  const std::vector<int> fpart = face_components(m, dual.pairs, &I.parts);
-  I.vpart.assign(n, 0);
-  for (int f = 0; f < m; ++f)
-    for (int l = 0; l < 3; ++l) I.vpart[faces(f, l)] = fpart[f];
+  // Parts (vertices connected through edges): those with a control are solved, the others
+  // stay exactly at rest.
+  {
+    DisjointSets sets(n);
+    for (int f = 0; f < m; ++f) {
+      sets.unite(faces(f, 0), faces(f, 1));
+      sets.unite(faces(f, 0), faces(f, 2));
+    }
+    std::vector<int> label(n, -1);
+    I.vpart.resize(n);
+    I.parts = 0;
+    for (int v = 0; v < n; ++v) {
+      const int root = sets.find(v);
+      if (label[root] < 0) label[root] = I.parts++;
+      I.vpart[v] = label[root];
+    }
+  }
+  std::vector<int> fpart(m);
+  for (int f = 0; f < m; ++f) fpart[f] = I.vpart[faces(f, 0)];
   std::vector<char> controlled(I.parts, 0);
   I.part_frozen.assign(I.parts, 0);
   for (int v : I.handle_all) controlled[I.vpart[v]] = 1;
@@ -1837,28 +1871,14 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
         "frozen: the frozen region contains no face of the coarse mesh; enlarge it or use a "
         "larger coarse face count");
   }
-  // Root of each solved part for the rotation gauge: the face nearest the frame face, else
-  // nearest the part's rest centroid.
-  std::vector<int> part_root(I.parts, -1);
-  {
-    std::vector<std::vector<int>> members(I.parts);
-    for (int v = 0; v < n; ++v) members[I.vpart[v]].push_back(v);
-    for (int c = 0; c < I.parts; ++c) {
-      if (!controlled[c]) continue;
-      Vec3 point = gather_rows(vertices, members[c]).colwise().mean().transpose();
-      if (I.frame >= 0 && fpart[I.frame] == c) point = I.frame_rest_centroid;
-      part_root[c] = nearest_face(I.lrest, I.lfaces, point, &I.lface_part, c);
-    }
-  }
+  std::vector<std::vector<int>> part_members(I.parts);
+  for (int v = 0; v < n; ++v) part_members[I.vpart[v]].push_back(v);
   // Rotational pairs on the level.
   for (int q = 0; q < I.r; ++q) {
     std::array<int, 2> lp;
     for (int s = 0; s < 2; ++s) {
       const int f = options.rotational[q][s];
-      const Vec3 c =
-          (vertices.row(faces(f, 0)) + vertices.row(faces(f, 1)) + vertices.row(faces(f, 2)))
-              .transpose() /
-          3.0;
+      const Vec3 c = centroid(vertices, faces(f, 0), faces(f, 1), faces(f, 2));
       lp[s] = I.multires ? nearest_face(I.lrest, I.lfaces, c, &I.lface_part, fpart[f])
               : I.whole  ? f
                          : lface_of[f];
@@ -1928,40 +1948,45 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
       rcomp[f] = label[root];
     }
   }
-  // Its representative root: that of the part holding the frame face, else of the part whose
-  // root has the lexicographically smallest rest centroid (not the numbering).
+  // Its root face: the one nearest the frame face if that is in it, else nearest the rest
+  // centroid of the parts it touches (choices by geometry, not by the numbering).
   std::vector<int> rroot(rcount, -1);
   {
-    auto centroid = [&](int f) {
-      return Vec3((I.lrest.row(I.lfaces(f, 0)) + I.lrest.row(I.lfaces(f, 1)) +
-                   I.lrest.row(I.lfaces(f, 2))) /
-                  3.0);
-    };
-    std::vector<char> framed(rcount, 0);
-    for (int c = 0; c < I.parts; ++c) {
-      const int f = part_root[c];
-      if (f < 0 || framed[rcomp[f]]) continue;
-      int& best = rroot[rcomp[f]];
-      const Vec3 a = centroid(f), b = best < 0 ? a : centroid(best);
-      if (I.frame >= 0 && fpart[I.frame] == c) {
-        framed[rcomp[f]] = 1;
-        best = f;
-      } else if (best < 0 ||
-                 std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3)) {
-        best = f;
+    std::vector<std::vector<char>> touches(rcount, std::vector<char>(I.parts, 0));
+    for (int f = 0; f < lm; ++f) touches[rcomp[f]][I.lface_part[f]] = 1;
+    int frame_comp = -1;
+    const Vec3 frame_point =
+        I.frame < 0 ? Vec3::Zero()
+                    : centroid(vertices, faces(I.frame, 0), faces(I.frame, 1), faces(I.frame, 2));
+    if (I.frame >= 0) {
+      const int lf =
+          I.multires ? nearest_face(I.lrest, I.lfaces, frame_point, &I.lface_part, fpart[I.frame])
+          : I.whole  ? I.frame
+                     : lface_of[I.frame];
+      frame_comp = rcomp[lf];
+    }
+    for (int k = 0; k < rcount; ++k) {
+      Vec3 point = frame_point;
+      if (k != frame_comp) {
+        std::vector<int> ids;
+        for (int c = 0; c < I.parts; ++c) {
+          if (touches[k][c]) ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
+        }
+        point = canonical_mean(vertices, ids);
       }
+      rroot[k] = nearest_face(I.lrest, I.lfaces, point, &rcomp, k);
     }
   }
   std::vector<char> rfrozen(rcount, 0), rheld(rcount, 0);
   for (int f : I.lfixed_faces) rfrozen[rcomp[f]] = 1;
   for (int f : I.lhandle_faces) rheld[rcomp[f]] = 1;
-  // Tree roots: the fixed faces, then the root of every part without one.
+  // Tree roots: the fixed faces, then the root of every rotation component without one.
   auto tree_roots = [&](const std::vector<int>& fixed) {
     std::vector<int> roots = fixed;
-    std::vector<char> has(I.parts, 0);
-    for (int f : fixed) has[I.lface_part[f]] = 1;
-    for (int c = 0; c < I.parts; ++c) {
-      if (part_root[c] >= 0 && !has[c]) roots.push_back(part_root[c]);
+    std::vector<char> has(rcount, 0);
+    for (int f : fixed) has[rcomp[f]] = 1;
+    for (int k = 0; k < rcount; ++k) {
+      if (!has[k]) roots.push_back(rroot[k]);
     }
     return roots;
   };
