@@ -658,11 +658,8 @@ def case_pose_space(rng, v, f, hostile, perm, kind):
         kw["reliability_angle"] = rng.choice([0.2, 0.5, np.inf])
         kw["area_weights"] = bool(rng.random() < 0.2)
         kw["transfer_neighbors"] = int(rng.integers(1, 12))
-    if perm:  # converged rotations; with a coarse level every transfer weight (ties at the
-        # cut of the largest few are decided by round-off, so by the numbering)
+    if perm:  # converged rotations (the default cap leaves a numbering-dependent residual)
         kw.update(rotation_iterations=500, gauge_steps=50, rotation_tolerance=1e-12)
-        if "coarse" in kw:
-            kw["transfer_neighbors"] = 10**6
     # An edit: a blend of the examples (a little beyond), rigidly moved, with noise.
     w = rng.dirichlet(np.ones(p)) * 1.4 - 0.4 / p if p else None
     shape = np.einsum("k,kvc->vc", w, examples) if p else v.copy()
