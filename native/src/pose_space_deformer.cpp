@@ -184,20 +184,19 @@ Vec3 canonical_mean(const Vertices& V, std::vector<int> ids) {
 }
 
 // The face whose rest centroid is nearest to `point` (ties: lexicographic centroid), a choice
-// that does not depend on the numbering of faces or vertices. With `label`, only faces f with
-// label[f] == want are candidates (-1 when there is none).
+// that does not depend on the numbering of faces or vertices. Among the faces in `candidates`
+// (-1 when it is empty).
 int nearest_face(const Vertices& V, const Faces& F, const Vec3& point,
-                 const std::vector<int>* label = nullptr, int want = 0) {
+                 const std::vector<int>& candidates) {
   int best = -1;
   double bd = 0.0;
   Vec3 bc = Vec3::Zero();
-  for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    if (label && (*label)[f] != want) continue;
+  for (const int f : candidates) {
     const Vec3 c = centroid(V, F(f, 0), F(f, 1), F(f, 2));
     const double d = (c - point).squaredNorm();
     const bool better = best < 0 || d < bd || (d == bd && lex_less(c, bc));
     if (better) {
-      best = static_cast<int>(f);
+      best = f;
       bd = d;
       bc = c;
     }
@@ -296,7 +295,7 @@ class Interpolator {
 class RotationSolver {
  public:
   // tree_roots: where the gauge's spanning tree starts, every fixed face and one face in each
-  // mesh part without one (a part reached by no root keeps the identity gauge).
+  // rotation component without one (faces the tree does not reach keep the identity gauge).
   RotationSolver(int m, const IndexPairs& dual, const std::vector<std::array<int, 2>>& pairs,
                  double pair_weight, const std::vector<int>& fixed,
                  const std::vector<int>& tree_roots, const std::vector<int>& penalty_faces,
@@ -1224,7 +1223,7 @@ struct PoseSpaceDeformer::Impl {
   void check_reach(const Vertices& X, const std::string& what) const {
     for (Eigen::Index i = 0; i < X.rows(); ++i) {
       if (const auto d = beyond_reach(X.row(i).transpose())) {
-        fail(what + ": vertex " + std::to_string(i) + " lies " + number(*d) +
+        fail(what + ": row " + std::to_string(i) + " lies " + number(*d) +
              " from the rest mesh, over " + number(kMaxReach) +
              " times its size; rescale the mesh and the positions (only shapes matter)");
       }
@@ -1871,15 +1870,16 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
         "frozen: the frozen region contains no face of the coarse mesh; enlarge it or use a "
         "larger coarse face count");
   }
-  std::vector<std::vector<int>> part_members(I.parts);
+  std::vector<std::vector<int>> part_members(I.parts), lpart_faces(I.parts);
   for (int v = 0; v < n; ++v) part_members[I.vpart[v]].push_back(v);
+  for (int f = 0; f < lm; ++f) lpart_faces[I.lface_part[f]].push_back(f);
   // Rotational pairs on the level.
   for (int q = 0; q < I.r; ++q) {
     std::array<int, 2> lp;
     for (int s = 0; s < 2; ++s) {
       const int f = options.rotational[q][s];
       const Vec3 c = centroid(vertices, faces(f, 0), faces(f, 1), faces(f, 2));
-      lp[s] = I.multires ? nearest_face(I.lrest, I.lfaces, c, &I.lface_part, fpart[f])
+      lp[s] = I.multires ? nearest_face(I.lrest, I.lfaces, c, lpart_faces[fpart[f]])
               : I.whole  ? f
                          : lface_of[f];
     }
@@ -1952,29 +1952,35 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   // centroid of the parts it touches (choices by geometry, not by the numbering).
   std::vector<int> rroot(rcount, -1);
   {
-    std::vector<std::vector<char>> touches(rcount, std::vector<char>(I.parts, 0));
-    for (int f = 0; f < lm; ++f) touches[rcomp[f]][I.lface_part[f]] = 1;
+    std::vector<std::vector<int>> touches(rcount), rfaces(rcount);  // its parts, its faces
+    for (int f = 0; f < lm; ++f) {
+      touches[rcomp[f]].push_back(I.lface_part[f]);
+      rfaces[rcomp[f]].push_back(f);
+    }
+    for (std::vector<int>& t : touches) {
+      std::sort(t.begin(), t.end());
+      t.erase(std::unique(t.begin(), t.end()), t.end());
+    }
     int frame_comp = -1;
     const Vec3 frame_point =
         I.frame < 0 ? Vec3::Zero()
                     : centroid(vertices, faces(I.frame, 0), faces(I.frame, 1), faces(I.frame, 2));
     if (I.frame >= 0) {
-      const int lf =
-          I.multires ? nearest_face(I.lrest, I.lfaces, frame_point, &I.lface_part, fpart[I.frame])
-          : I.whole  ? I.frame
-                     : lface_of[I.frame];
+      const int lf = I.multires
+                         ? nearest_face(I.lrest, I.lfaces, frame_point, lpart_faces[fpart[I.frame]])
+                     : I.whole ? I.frame
+                               : lface_of[I.frame];
       frame_comp = rcomp[lf];
     }
     for (int k = 0; k < rcount; ++k) {
       Vec3 point = frame_point;
       if (k != frame_comp) {
         std::vector<int> ids;
-        for (int c = 0; c < I.parts; ++c) {
-          if (touches[k][c]) ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
-        }
+        for (int c : touches[k])
+          ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
         point = canonical_mean(vertices, ids);
       }
-      rroot[k] = nearest_face(I.lrest, I.lfaces, point, &rcomp, k);
+      rroot[k] = nearest_face(I.lrest, I.lfaces, point, rfaces[k]);
     }
   }
   std::vector<char> rfrozen(rcount, 0), rheld(rcount, 0);

@@ -556,7 +556,7 @@ def test_handles_beyond_double_range_are_refused_not_nan(scene, kind):
     X0, w0 = d.deform(good), d.example_weights
     far = [p * 1e155 if kind.startswith("scaled") else p + 1e200 for p in good]
     for call in (d.deform, d.pose_weights):
-        with pytest.raises(ValueError, match=r"handle_positions\[0\]: vertex 0 lies .* rescale"):
+        with pytest.raises(ValueError, match=r"handle_positions\[0\]: row 0 lies .* rescale"):
             call(far)
     with pytest.raises(ValueError, match="frame_transform: .* rescale"):
         d.deform(good, frame_transform=np.diag([1.0, 1, 1, 1]) + np.eye(4, k=3) * 1e200)
@@ -582,7 +582,7 @@ def test_far_but_representable_handles_give_finite_results(scene, scale):
 
 def test_examples_beyond_double_range_are_refused_and_large_ones_work(scene):
     v, f, ex, handles = scene
-    with pytest.raises(ValueError, match=r"examples\[1\]: vertex \d+ lies .* rescale"):
+    with pytest.raises(ValueError, match=r"examples\[1\]: row \d+ lies .* rescale"):
         md.PoseSpaceDeformer(v, f, np.stack([ex[0], ex[1] * 1e155]), handles)
     # A huge but representable example: the pose system is scaled, so the weights are still
     # exact at the examples (its pose vector is 1e40 times the other's), the big example is
