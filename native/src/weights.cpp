@@ -139,8 +139,10 @@ SparseWeights largest_harmonic_weights(int num_faces, const IndexPairs& pairs,
   const HarmonicSystem sys(num_faces, pairs, phi, anchors, SparseCholesky::Reuse::PerPose);
   const int k = static_cast<int>(anchors.size());
   keep = std::min(keep, k);
-  // Per face, up to `keep` (weight, anchor) entries, best first: larger weight, then lower anchor
-  // (the order a partial sort of the dense row would give).
+  constexpr double kTie = 1e-12;  // weights lie in [0, 1]; the solve's round-off is ~1e-15
+  // Per face, up to `keep` (weight, anchor) entries, best first: larger weight, then lower anchor.
+  // Weights within kTie count as tied: on a symmetric mesh tied weights differ by round-off,
+  // which depends on the node numbering, and must not decide which anchor is kept.
   std::vector<double> best_w(static_cast<size_t>(num_faces) * keep, 0.0);
   std::vector<int> best_a(best_w.size(), -1);
   std::vector<int> count(static_cast<size_t>(num_faces), 0);
@@ -149,7 +151,7 @@ SparseWeights largest_harmonic_weights(int num_faces, const IndexPairs& pairs,
     double* bw = &best_w[static_cast<size_t>(f) * keep];
     int* ba = &best_a[static_cast<size_t>(f) * keep];
     int& c = count[f];
-    auto better = [&](int i) { return w > bw[i] || (w == bw[i] && a < ba[i]); };
+    auto better = [&](int i) { return w > bw[i] + kTie || (w >= bw[i] - kTie && a < ba[i]); };
     if (c == keep && !better(c - 1)) return;
     int i = c < keep ? c++ : c - 1;
     for (; i > 0 && better(i - 1); --i) {

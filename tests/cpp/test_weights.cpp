@@ -180,7 +180,7 @@ TEST(Weights, LargestHarmonicWeightsAreTheDenseRowsLargest) {
       for (int i = b; i < e; ++i) {
         kept[S.idx[i]] = 1;
         bad += std::abs(S.w[i] - W(f, S.idx[i])) > 1e-12;  // the dense value
-        bad += i > b && S.w[i] > S.w[i - 1];               // largest first
+        bad += i > b && S.w[i] > S.w[i - 1] + 1e-12;       // largest first (ties by anchor)
       }
       for (int a = 0; a < k; ++a) bad += !kept[a] && W(f, a) > S.w[e - 1] + 1e-12;
     }

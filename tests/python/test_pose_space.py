@@ -391,6 +391,29 @@ def test_relabelling_a_symmetric_tube_keeps_the_root_face():
         assert np.abs(r.to_original(d2.deform(hp)) - X).max() < 1e-9 * d0, seed
 
 
+def test_relabelling_a_symmetric_tube_keeps_the_transfer_neighbours():
+    """On a round tube a dense vertex is often equally far (harmonically) from several coarse
+    vertices, and which of the tied ones is among its `transfer_neighbors` largest was decided
+    by round-off, hence by the numbering (1.1e-4 of the diagonal here). Ties within 1e-12 now
+    go to the lower coarse index (coarse vertices are numbered by position)."""
+    v, f = shapes.tube(length=3.0, radius=0.7, n_around=7, n_along=2)
+    v = v @ rotation([1, 2, 3], 0.7).T
+    rng = np.random.default_rng(0)
+    ex = np.stack([v, v + 0.1 * np.sin(v @ rng.normal(size=(3, 3))) @ rng.normal(size=(3, 3))])
+    handles = [np.arange(3), np.arange(len(v) - 4, len(v))]
+    kw = dict(rotation_iterations=500, gauge_steps=50, rotation_tolerance=1e-12, coarse=17)
+    kw["transfer_neighbors"] = 5
+    hp = [0.5 * (ex[0][h] + ex[1][h]) + 0.01 for h in handles]
+    X = md.PoseSpaceDeformer(v, f, ex, handles, **kw).deform(hp)
+    for seed in range(4):
+        r = Relabelling(v, f, np.random.default_rng(seed))
+        ex2 = np.stack([r.per_vertex(x) for x in ex])
+        d2 = md.PoseSpaceDeformer(
+            r.vertices, r.faces, ex2, [r.vertex_ids(h) for h in handles], **kw
+        )
+        assert np.abs(r.to_original(d2.deform(hp)) - X).max() < 1e-9 * diag(v), seed
+
+
 def test_frame_transform_moves_the_whole_model(scene):
     v, f, ex, handles = scene
     d = md.PoseSpaceDeformer(v, f, ex, handles, frame=2)

@@ -20,7 +20,8 @@ RowMatrix harmonic_weights(int num_faces, const IndexPairs& pairs, const Eigen::
 
 // The `keep` largest entries of every row of harmonic_weights, without the dense (m,k) matrix:
 // the k columns are solved a block at a time (one factorisation) and each row keeps its best
-// entries, larger weight first, then lower anchor (ties), only entries > 0. Memory is
+// entries, larger weight first, then lower anchor for weights within 1e-12 (ties, so that
+// round-off does not choose between symmetric anchors), only entries > 0. Memory is
 // O(m (block + keep)) instead of 8 m k bytes (gigabytes at a million faces and 500 anchors).
 // Row f owns idx/w[ptr[f] .. ptr[f+1]); weights as computed (not renormalised). keep >= 1.
 struct SparseWeights {
