@@ -86,6 +86,31 @@ def set_key_record(obj, text: str) -> None:
         keys[POSE_RECORD] = text
 
 
+ROTATIONS = "material_deform_rotations"  # custom property of the Key: the vectors it shows
+
+
+def key_rotations(obj, count: int) -> np.ndarray | None:
+    """(count,3) rotation vectors the output key was last solved with (saved with it, restored
+    by undo with it), None if there are none of that shape."""
+    keys = obj.data.shape_keys
+    got = None if keys is None else keys.get(ROTATIONS)
+    if got is None:
+        return None
+    try:
+        v = np.array(got[:], dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if v.shape != (3 * count,) or not np.isfinite(v).all():
+        return None
+    return v.reshape(count, 3)
+
+
+def set_key_rotations(obj, vectors) -> None:
+    keys = obj.data.shape_keys
+    if keys is not None:
+        keys[ROTATIONS] = np.asarray(vectors, dtype=np.float64).ravel().tolist()
+
+
 def write_key(obj, kb, positions) -> None:
     """Hot path: one bulk copy into the shape key, then the Key tagged for re-evaluation.
 
