@@ -60,16 +60,9 @@ def _pose_positions(
     tw = entry.extra["twist"] = twist.Twist(shown)
     try:
         t = None if at_rest else am.anchor_transforms(m_obj, now, bind_m, m_obj_bind)
-        v = tw.vectors(
-            obj,
-            scene,
-            bridge.scene_frame(scene),
-            _matrix_key(obj, None),
-            lambda: t,
-            (bind_m, m_obj_bind, frames, m_obj),
-            full=True,
-        )
-        rotations = twist.principal_or(v)
+        bind = (bind_m, m_obj_bind, b"", np.asarray(frames, dtype=np.int64))
+        frame, mkey = bridge.scene_frame(scene), _matrix_key(obj, None)
+        v, rotations = tw.vectors(obj, scene, frame, mkey, lambda: t, bind, m_obj, full=True)
         if t is None and rotations is None:
             return entry.rest.copy(), v
         if t is None:
@@ -137,7 +130,7 @@ def bind(
     s.bound = True
     rotations = twist.principal_or(vectors)
     entry.last_key = _matrix_key(obj, None) + (b"" if rotations is None else rotations.tobytes())
-    entry.extra["saved_rotations"] = vectors.tobytes()
+    entry.extra["twist"].unsaved = False
     # Bind solves a kept pose without the live settings (they reach an iterative method only
     # through the live checks): its result counts as settled only at the bind pose itself
     at_rest = x is entry.rest or np.array_equal(x, entry.rest)
@@ -255,7 +248,6 @@ def after_undo(scene, objects) -> None:
         entry.extra.pop("bind_matrices", None)  # so were the bind matrices
         # and the vectors saved with the key; the animation may be another one too
         entry.extra.pop("twist", None)
-        entry.extra.pop("saved_rotations", None)
         entry.key_pointer = 0  # and its block may live elsewhere now
     for obj in scene.objects:
         key = obj.as_pointer()

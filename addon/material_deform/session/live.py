@@ -87,12 +87,12 @@ def _pose(obj, entry: Entry, scene, depsgraph, mats, members, mkey: bytes, full=
     tw = entry.extra.get("twist")
     if tw is None:
         tw = entry.extra["twist"] = twist.Twist(bridge.key_rotations(obj, entry.n_anchors))
-    bind_m, m_obj_bind, _bytes, frames = _bind_matrices(obj, entry)
-    if len(bind_m) != entry.n_anchors:
+    bind = _bind_matrices(obj, entry)
+    if len(bind[0]) != entry.n_anchors:
         transforms()  # "Anchors changed since bind"
     frame = bridge.scene_frame(scene)
-    v = tw.vectors(obj, scene, frame, mkey, transforms, (bind_m, m_obj_bind, frames, m_obj), full)
-    return transforms, twist.principal_or(v)
+    _v, rotations = tw.vectors(obj, scene, frame, mkey, transforms, bind, m_obj, full)
+    return transforms, rotations
 
 
 def _live_checks(obj, entry: Entry, depsgraph):
@@ -164,15 +164,13 @@ def apply(
 
 
 def _save_rotations(obj, entry: Entry) -> None:
-    """Save the vectors the key now shows with it (when they changed), so that a followed
-    anchor continues from them after undo, reloading, or in a farm's fresh process."""
+    """Save the vectors the key now shows with it when a followed anchor's changed, so that it
+    continues from them after undo, reloading, or in a farm's fresh process (an animated
+    anchor's come from its animation: playback writes nothing)."""
     tw = entry.extra.get("twist")
-    if tw is None or tw.shown is None:
-        return
-    data = tw.shown.tobytes()
-    if entry.extra.get("saved_rotations") != data:
+    if tw is not None and tw.unsaved and tw.shown is not None:
         bridge.set_key_rotations(obj, tw.shown)
-        entry.extra["saved_rotations"] = data
+        tw.unsaved = False
 
 
 def solve_now(obj, scene) -> None:

@@ -86,6 +86,19 @@ class _Anchor:
     broken: str = ""  # why sampling failed (followed until the animation changes)
 
 
+class _Frame:
+    """Every anchor's animation at one frame, and what each update's check needs of it."""
+
+    __slots__ = ("v", "m", "ok", "tol", "all_animated", "rotations")
+
+    def __init__(self, v, m, ok):
+        self.v, self.m, self.ok = v, m, ok  # (k,3), (k,3,3), (k,) sampled
+        # how far a live matrix may be from the animation's and still be it (float32 round-off)
+        self.tol = MATCH_TOLERANCE * np.abs(m).max(axis=(1, 2))[:, None, None]
+        self.all_animated = bool(ok.all())
+        self.rotations = principal_or(v)
+
+
 class Twist:
     """One bound object's rotation vectors (kept in ``entry.extra['twist']``).
 
@@ -93,6 +106,7 @@ class Twist:
     the output key."""
 
     def __init__(self, shown=None):
+        self.bind_src = None  # the bind tuple last taken
         self.bind_key = None
         self.right = None  # (k,4,4) inv(M_empty_bind) M_obj_bind
         self.frames = None  # (k,) bind frames
@@ -101,20 +115,30 @@ class Twist:
         self.epoch = 0  # bumped whenever a cached animation was dropped
         self.last = None  # ((frame, mkey, epoch), vectors) of the last update
         self.shown = None if shown is None else np.array(shown, dtype=np.float64)
-        self.shown_m = None  # (k,3,3) live matrices the shown vectors were made for
-        self.by_frame: dict = {}  # frame -> (vectors (k,3), matrices (k,3,3), animated (k,))
+        self.followed = None  # (key, vectors, principal) of the last followed anchors
+        self.unsaved = False  # followed vectors changed since the key last saved them
+        self.by_frame: dict = {}  # frame -> _Frame
 
     # --- what moves each anchor --------------------------------------------------------------
 
-    def _bind(self, scene, bind_m, m_obj_bind, m_obj, frames) -> None:
-        right = am.affine_inverse(bind_m) @ (m_obj if m_obj_bind is None else m_obj_bind)
+    def _bind(self, scene, bind, m_obj) -> None:
+        """Take the bind of this update: ``bind`` as :func:`pose._bind_matrices` keeps it (the
+        same tuple until a bind changes it)."""
+        bind_m, m_obj_bind, _bytes, frames = bind
+        if bind is self.bind_src and m_obj_bind is not None:
+            return
+        if m_obj_bind is None:  # bound before the object's matrix was kept: as if never moved
+            m_obj_bind = m_obj
         frames = np.asarray(frames, dtype=np.int64)
         if (frames == UNKNOWN_FRAME).any():  # bound by an older version: the scene's start
             frames = np.where(frames == UNKNOWN_FRAME, scene.frame_start, frames)
-        key = right.tobytes() + frames.tobytes()
+        key = (bind_m.tobytes(), m_obj_bind.tobytes(), frames.tobytes())
         if key != self.bind_key:
-            self.bind_key, self.right, self.frames = key, right, frames
+            self.bind_key = key
+            self.right = am.affine_inverse(bind_m) @ m_obj_bind
+            self.frames = frames
             self.anchors = None
+        self.bind_src = bind
 
     def _build(self, obj, a: int) -> _Anchor:
         empty = settings(obj).anchors[a].empty
@@ -206,8 +230,8 @@ class Twist:
             info.grid[n] = (v, m)
         info.lo, info.hi = min(info.lo, end), max(info.hi, end)
 
-    def _frame(self, obj, frame: float):
-        """(vectors (k,3), matrices (k,3,3), sampled (k,) bool) of the animation at frame."""
+    def _frame(self, obj, frame: float) -> _Frame:
+        """The animation of every anchor at ``frame`` (cached)."""
         got = self.by_frame.get(frame)
         if got is None:
             k = len(self.anchors)
@@ -220,22 +244,22 @@ class Twist:
                     vs[a], ms[a], ok[a] = value[0], value[1], True
             if len(self.by_frame) > 4096:
                 self.by_frame.clear()
-            got = self.by_frame[frame] = (vs, ms, ok)
+            got = self.by_frame[frame] = _Frame(vs, ms, ok)
         return got
 
     # --- per update ----------------------------------------------------------------------------
 
-    def vectors(self, obj, scene, frame, mkey, transforms, bind, full=False) -> np.ndarray:
-        """(k,3) rotation vectors of the anchors now.
+    def vectors(self, obj, scene, frame, mkey, transforms, bind, m_obj, full=False):
+        """(vectors (k,3), rotations) of the anchors now: ``rotations`` is what the methods get,
+        the vectors or None when every one is its principal log (:func:`principal_or`).
 
         ``frame``: the scene's frame (with its sub-frame); ``mkey``: bytes of this update's
         live matrices; ``transforms``: a callable returning this update's (k,4,4) anchor
         transforms (None at the bind pose), called only when the vectors may have changed;
-        ``bind``: (bind matrices (k,4,4), object matrix at bind (4,4) or None, bind frames
-        (k,), the object's matrix now (4,4)); ``full``: compare the animation with what is
-        cached in full first (renders, bakes, Update)."""
-        bind_m, m_obj_bind, frames, m_obj = bind
-        self._bind(scene, bind_m, m_obj_bind, m_obj, frames)
+        ``bind``: :func:`pose._bind_matrices`; ``m_obj``: the object's matrix now (4,4);
+        ``full``: compare the animation with what is cached in full first (renders, bakes,
+        Update)."""
+        self._bind(scene, bind, m_obj)
         self._validate(obj, full)
         key = (frame, mkey, self.epoch)
         if not full and self.last is not None and self.last[0] == key:
@@ -243,34 +267,41 @@ class Twist:
         t = transforms()
         k = len(self.anchors)
         live = np.broadcast_to(np.eye(3), (k, 3, 3)) if t is None else t[:, :3, :3]
-        vs, ms, ok = self._frame(obj, frame)
-        if ok.any():  # where the live matrix is not the animation's, it is being dragged
-            scale = np.abs(live).max(axis=(1, 2))
-            ok = ok & (np.abs(ms - live).max(axis=(1, 2)) <= MATCH_TOLERANCE * scale)
-        out = vs.copy()
-        if not ok.all():
-            self._follow(out, ~ok, live)
-        self.shown, self.shown_m = out, np.array(live)
-        self.last = (key, out)
-        return out
+        got = self._frame(obj, frame)
+        # where the live matrix is not the animation's, the Empty is being dragged
+        close = np.abs(got.m - live) <= got.tol
+        if got.all_animated and close.all():
+            out, rotations = got.v, got.rotations
+            self.followed = None
+        else:
+            idx = np.flatnonzero(~(got.ok & close.all(axis=(1, 2))))
+            fv, principal = self._follow(idx, live)
+            out = got.v.copy()
+            out[idx] = fv
+            rotations = None if principal and got.rotations is None else out
+        self.shown = out
+        self.last = (key, (out, rotations))
+        return out, rotations
 
-    def _follow(self, out, which, live) -> None:
-        """The log nearest the vector shown last, for the anchors ``which``; unchanged where the
-        live matrix is the one it was shown for."""
-        prev = self.shown if self.shown is not None and self.shown.shape == out.shape else None
-        if prev is None:
-            prev = np.zeros_like(out)
-        idx = np.flatnonzero(which)
-        if self.shown_m is not None and self.shown_m.shape == live.shape:
-            same = (self.shown_m[idx] == live[idx]).all(axis=(1, 2))
-            out[idx[same]] = prev[idx[same]]
-            idx = idx[~same]
-        if len(idx):
+    def _follow(self, idx, live) -> tuple[np.ndarray, bool]:
+        """Vectors of the followed anchors ``idx``: the logs nearest the vectors shown last;
+        and whether all of them are principal logs. Kept while the same anchors are followed
+        and their live matrices stay as they were."""
+        key = idx.tobytes() + np.ascontiguousarray(live[idx]).tobytes()
+        if self.followed is not None and self.followed[0] == key:
+            return self.followed[1], self.followed[2]
+        k = len(live)
+        prev = self.shown if self.shown is not None and self.shown.shape == (k, 3) else None
+        start = np.zeros((len(idx), 3)) if prev is None else prev[idx]
+        try:
             rot = np.ascontiguousarray(live[idx])[None]
-            try:
-                out[idx] = _core().unwrap_rotations(rot, start=prev[idx])[0]
-            except ValueError:  # an Empty scaled to zero: the solve says so (or ignores it)
-                out[idx] = prev[idx]
+            fv = _core().unwrap_rotations(rot, start=start)[0]
+        except ValueError:  # an Empty scaled to zero: the solve says so (or ignores it)
+            fv = start
+        principal = principal_or(fv) is None
+        self.followed = (key, fv, principal)
+        self.unsaved = True
+        return fv, principal
 
     def why_followed(self) -> list[str]:
         """Per anchor: why its animation is not used ('' where it is), for the docs' readout
