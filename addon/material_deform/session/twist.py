@@ -107,6 +107,7 @@ class Twist:
 
     def __init__(self, shown=None):
         self.bind_src = None  # the bind tuple last taken
+        self.unknown = False  # some anchor has no bind frame (the scene's start is used)
         self.bind_key = None
         self.right = None  # (k,4,4) inv(M_empty_bind) M_obj_bind
         self.frames = None  # (k,) bind frames
@@ -117,6 +118,7 @@ class Twist:
         self.shown = None if shown is None else np.array(shown, dtype=np.float64)
         self.followed = None  # (key, vectors, principal) of the last followed anchors
         self.unsaved = False  # followed vectors changed since the key last saved them
+        self.moved = ()  # sampled anchors the last update found away from their animation
         self.by_frame: dict = {}  # frame -> _Frame
 
     # --- what moves each anchor --------------------------------------------------------------
@@ -125,12 +127,13 @@ class Twist:
         """Take the bind of this update: ``bind`` as :func:`pose._bind_matrices` keeps it (the
         same tuple until a bind changes it)."""
         bind_m, m_obj_bind, _bytes, frames = bind
-        if bind is self.bind_src and m_obj_bind is not None:
+        if bind is self.bind_src and m_obj_bind is not None and not self.unknown:
             return
         if m_obj_bind is None:  # bound before the object's matrix was kept: as if never moved
             m_obj_bind = m_obj
         frames = np.asarray(frames, dtype=np.int64)
-        if (frames == UNKNOWN_FRAME).any():  # bound by an older version: the scene's start
+        self.unknown = bool((frames == UNKNOWN_FRAME).any())
+        if self.unknown:  # bound by an older version: the scene's start frame, as it is now
             frames = np.where(frames == UNKNOWN_FRAME, scene.frame_start, frames)
         key = (bind_m.tobytes(), m_obj_bind.tobytes(), frames.tobytes())
         if key != self.bind_key:
@@ -273,8 +276,10 @@ class Twist:
         if got.all_animated and close.all():
             out, rotations = got.v, got.rotations
             self.followed = None
+            self.moved = ()
         else:
             idx = np.flatnonzero(~(got.ok & close.all(axis=(1, 2))))
+            self.moved = idx[got.ok[idx]]  # sampled, but not where the keys put them
             fv, principal = self._follow(idx, live)
             out = got.v.copy()
             out[idx] = fv
@@ -304,11 +309,14 @@ class Twist:
         return fv, principal
 
     def why_followed(self) -> list[str]:
-        """Per anchor: why its animation is not used ('' where it is), for the docs' readout
-        and the tests."""
+        """Per anchor: why the last update did not take its vector from its animation ('' where
+        it did), for scripts and the tests."""
         if self.anchors is None:
             return []
-        return [info.followed or info.broken for info in self.anchors]
+        out = [info.followed or info.broken for info in self.anchors]
+        for a in self.moved:
+            out[a] = "not where its keys put it"
+        return out
 
 
 def _core():
