@@ -35,13 +35,14 @@ _PATHS = ROTATION_PATHS + SCALE_PATHS
 _SIZES = {"rotation_quaternion": 4, "delta_rotation_quaternion": 4, "rotation_axis_angle": 4}
 
 
-def action_fcurves(anim_data) -> tuple:
-    """The F-curves the assigned action applies to the animated ID: Blender 4.4+ slotted
-    actions (the channelbag of the assigned slot, none without a slot; 5.0 has no
-    ``Action.fcurves``), before that ``action.fcurves``."""
+def fcurve_collection(anim_data):
+    """The collection of F-curves the assigned action applies to the animated ID (it has
+    ``remove``), None without any: Blender 4.4+ slotted actions keep them in the channelbag of
+    the assigned slot (none without a slot; 5.0 has no ``Action.fcurves``), older versions in
+    ``action.fcurves``."""
     act = None if anim_data is None else anim_data.action
     if act is None:
-        return ()
+        return None
     if hasattr(anim_data, "action_slot"):
         from bpy_extras import anim_utils
 
@@ -49,8 +50,15 @@ def action_fcurves(anim_data) -> tuple:
         if get is not None:
             slot = anim_data.action_slot
             bag = None if slot is None else get(act, slot)
-            return () if bag is None else tuple(bag.fcurves)
-    return tuple(getattr(act, "fcurves", ()))
+            return None if bag is None else bag.fcurves
+    return getattr(act, "fcurves", None)
+
+
+def action_fcurves(anim_data) -> tuple:
+    """The F-curves the assigned action applies to the animated ID (see
+    :func:`fcurve_collection`), as a tuple."""
+    got = fcurve_collection(anim_data)
+    return () if got is None else tuple(got)
 
 
 def _muted(fc) -> bool:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import BindError
+from .animation import fcurve_collection
 from .arrays import _get, _raw_copy_into_key
 
 OUTPUT_KEY = "Material Deform"
@@ -164,23 +165,6 @@ def bake_key(obj, frame, positions) -> str:
     return name
 
 
-def _fcurves(id_data):
-    """The F-curves animating ``id_data`` (slotted actions in 4.4+), None without any."""
-    ad = id_data.animation_data
-    if ad is None or ad.action is None:
-        return None
-    slot = getattr(ad, "action_slot", None)
-    if slot is not None:
-        try:
-            from bpy_extras.anim_utils import action_get_channelbag_for_slot
-        except ImportError:
-            pass
-        else:
-            bag = action_get_channelbag_for_slot(ad.action, slot)
-            return None if bag is None else bag.fcurves
-    return getattr(ad.action, "fcurves", None)
-
-
 def bake_key_names(obj) -> list[str]:
     keys = obj.data.shape_keys
     if keys is None:
@@ -194,7 +178,7 @@ def remove_bake_keys(obj) -> int:
     if not names:
         return 0
     keys = obj.data.shape_keys
-    fcurves = _fcurves(keys)
+    fcurves = fcurve_collection(keys.animation_data)
     if fcurves is not None:
         paths = {f'key_blocks["{n}"].value' for n in names}
         for fc in [fc for fc in fcurves if fc.data_path in paths]:
