@@ -358,6 +358,25 @@ def test_dragging_past_half_a_turn_without_keys_continues_without_a_jump(tmp_pat
     assert ring_turn(output(obj)) == pytest.approx(math.radians(135), abs=TOL)
 
 
+def test_undo_of_a_drag_past_half_a_turn_keeps_its_turns():
+    """The vectors a key shows are restored with it by Ctrl+Z: the update after undo writes
+    the same bits, and the next drag continues from the turns shown (not the short way)."""
+    obj, top = twist_tube()
+    shown = []
+    for _ in range(9):  # to 270 degrees, one undo step per drag (what the UI pushes)
+        turn_by(top, 30)
+        assert bpy.ops.ed.undo_push(message="turn") == {"FINISHED"}
+        shown.append(output(obj).copy())
+    assert bpy.ops.ed.undo() == {"FINISHED"}
+    obj = bpy.data.objects["Tube"]  # memfile undo replaced the datablocks
+    top = obj.material_deform.anchors[1].empty
+    assert output(obj).tobytes() == shown[-2].tobytes()  # 240
+    update()  # the live handler after undo: the same bits
+    assert output(obj).tobytes() == shown[-2].tobytes()
+    turn_by(top, 60)  # 300 degrees: the middle at 150, not at -30
+    assert ring_turn(output(obj)) == pytest.approx(math.radians(150), abs=TOL)
+
+
 def test_dragging_an_animated_empty_continues_from_its_animated_pose():
     """At frame 13 the animation shows a whole turn (the middle at 180); turning the Empty
     further by hand continues from there; the next frame shows the animation again."""
