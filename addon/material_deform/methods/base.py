@@ -96,6 +96,13 @@ class Method:
         rotations uses them; one that sees only positions may ignore them."""
         raise NotImplementedError
 
+    def watched_objects(self, obj) -> tuple:
+        """Objects besides the anchors' Empties whose placement this method reads (e.g. an
+        Empty giving directions): the session keys live updates on their matrices too, so
+        turning one re-runs ``check_live``, and an Empty listed here is owned by ``obj`` in
+        the panel. None entries are skipped."""
+        return ()
+
     def check_live(self, obj, entry, depsgraph) -> None:
         """Cheap per-update check of method inputs that can change without an edit the
         session sees (raise BindError to stop updating)."""

@@ -414,6 +414,10 @@ class EdgeMethod(Method):
     def seed(self, solver, state, positions) -> None:
         state["x"] = np.array(positions, dtype=np.float64)
 
+    def watched_objects(self, obj) -> tuple:
+        s = edge_settings(obj)
+        return (s.direction_empty,) if s.direction_source == "EMPTY" else ()
+
     def check_live(self, obj, entry, depsgraph) -> None:
         """Reads the live settings for the next solve (they are not part of the bind), and
         stops updating if the direction Empty turned since bind."""

@@ -178,6 +178,10 @@ class MaterialMethod(Method):
         # the anchors' turns: Eq. 2 blends these logs (None: the principal ones)
         return Result(solver.deformer.deform(t, out=out, rotation_vectors=rotations))
 
+    def watched_objects(self, obj) -> tuple:
+        s = settings(obj)
+        return (s.axes_empty,) if s.anisotropic else ()
+
     def check_live(self, obj, entry, depsgraph) -> None:
         """Rebind is needed if the anisotropy axes moved since bind. The axes come from an SVD
         (LAPACK, which keeps an OpenBLAS thread spinning in bpy 4.x), so they are recomputed

@@ -8,20 +8,24 @@ import numpy as np
 
 from .. import anchor_math as am
 from .. import bridge
+from ..inputs import method_of
+from ..methods import all_methods
 from ..model import BindError, Entry, settings
 from .state import _cache
 
 
 def owner_of(obj, scene):
-    """The mesh whose anchor (or anisotropy axes) ``obj`` drives, None if there is none: the
-    panel and the object operators then act on that mesh while an Empty is selected."""
+    """The mesh whose anchor (or a method's watched Empty, e.g. anisotropy axes) ``obj``
+    drives, None if there is none: the panel and the object operators then act on that mesh
+    while an Empty is selected."""
     if obj is None or obj.type != "EMPTY" or scene is None:
         return None
     for o in scene.objects:
         if o.type != "MESH":
             continue
-        s = settings(o)
-        if s.axes_empty == obj or any(a.empty == obj for a in s.anchors):
+        if any(a.empty == obj for a in settings(o).anchors) or any(
+            obj in m.watched_objects(o) for m in all_methods()
+        ):
             return o
     return None
 
@@ -138,22 +142,27 @@ def _anchor_empties(obj, scene, members=None):
 def _live_matrices(obj, depsgraph) -> tuple:
     """The world matrices one update needs, read once (each RNA read costs ~3.5 us): the
     object's, one per anchor (None without an Empty or when not evaluated; a (k,4,4) array
-    when every anchor has one and no depsgraph is given) and the axes Empty's."""
+    when every anchor has one and no depsgraph is given) and a list, one per object the
+    active method watches (:meth:`methods.Method.watched_objects`)."""
     s = settings(obj)
     empties = [a.empty for a in s.anchors]
     if depsgraph is None and None not in empties:
         anchors = bridge.world_matrices(empties)
     else:
         anchors = [None if e is None else bridge.world_matrix(e, depsgraph) for e in empties]
-    axes = None if s.axes_empty is None else bridge.world_matrix(s.axes_empty, depsgraph)
-    return bridge.world_matrix(obj, depsgraph), anchors, axes
+    watched = [
+        bridge.world_matrix(o, depsgraph)
+        for o in method_of(obj).watched_objects(obj)
+        if o is not None
+    ]
+    return bridge.world_matrix(obj, depsgraph), anchors, watched
 
 
 def _matrix_key(obj, depsgraph, mats=None) -> bytes:
-    """Bytes that change when the object, an anchor's Empty or the axes Empty moved (turning the
-    axes Empty after bind makes the bind stale)."""
-    m_obj, anchors, axes = _live_matrices(obj, depsgraph) if mats is None else mats
-    return b"".join(b"-" if m is None else m.tobytes() for m in (m_obj, *anchors, axes))
+    """Bytes that change when the object, an anchor's Empty or a watched object moved (turning
+    e.g. the axes Empty after bind makes the bind stale)."""
+    m_obj, anchors, watched = _live_matrices(obj, depsgraph) if mats is None else mats
+    return b"".join(b"-" if m is None else m.tobytes() for m in (m_obj, *anchors, *watched))
 
 
 def _bind_matrices(obj, entry: Entry) -> tuple:
