@@ -26,7 +26,9 @@ def frame_start(entry) -> None:
     from its own start, never from the previous frame's result (Edge: the rest mesh; Pyramid:
     the controls' best-fit similarity of the rest mesh); the direct methods keep no result.
     Called before each baked frame; the method's settings are read again by the solve's own
-    checks."""
+    checks. The anchors' rotation vectors (``session.twist``) are not state: for keyframed
+    anchors they follow from the frame alone (what is cached is the animation's), and only an
+    anchor the sampler cannot evaluate continues from the pose shown before."""
     entry.state.clear()
 
 

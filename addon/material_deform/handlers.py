@@ -66,6 +66,7 @@ def _subscribe():
 def on_depsgraph_update(scene, depsgraph=None):
     if not _busy:
         _guard_paint()
+        session.note_changes(depsgraph)  # an edited animation: its cached turns are checked
     _run(scene, None)
 
 
@@ -90,6 +91,7 @@ def on_load(_filepath=None, *_args):
     # fingerprints still match) but do not deform yet: world matrices are not evaluated during
     # load_post, the first depsgraph update after loading does that.
     session.clear_cache()
+    session.forget_changes()
     _subscribe()  # loading a file clears the subscriptions
     scene = bpy.context.scene
     if scene is not None:

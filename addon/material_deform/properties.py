@@ -19,6 +19,7 @@ from bpy.props import (
 from . import methods, updates
 
 IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
+UNKNOWN_BIND_FRAME = -(2**31)  # session.twist.UNKNOWN_FRAME
 
 
 def _settings_changed(self, context):
@@ -78,6 +79,9 @@ class MaterialDeformAnchor(bpy.types.PropertyGroup):
     )
     # world matrix of the Empty at bind time (its bind pose), row-major
     bind_matrix: FloatVectorProperty(size=16, default=IDENTITY16, options={"HIDDEN"})
+    # the scene frame of the bind pose: turns are counted along the animation from there
+    # (UNKNOWN_BIND_FRAME: bound by an older version; the scene's start frame is used)
+    bind_frame: IntProperty(default=UNKNOWN_BIND_FRAME, options={"HIDDEN"})
     # the Empty the bind pose belongs to (None: not bound yet, or bound by an older version)
     bound_empty: PointerProperty(type=bpy.types.Object, options={"HIDDEN"})
 

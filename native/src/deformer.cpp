@@ -185,6 +185,24 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
   }
   av_offsets_.push_back(static_cast<int>(va.size()));
 
+  // Parts (vertices joined by region faces) with no anchor face and no pinned vertex stay at
+  // rest bit for bit: fixed there rather than solved to rest up to round-off.
+  {
+    const int ns = static_cast<int>(sub_vertices_.size());
+    DisjointSets parts(ns);
+    for (int f = 0; f < ms; ++f) {
+      parts.unite(sub_faces_(f, 0), sub_faces_(f, 1));
+      parts.unite(sub_faces_(f, 0), sub_faces_(f, 2));
+    }
+    std::vector<char> controlled(ns, 0);
+    for (int v : anchor_vertices_) controlled[parts.find(v)] = 1;
+    if (pinned_)
+      for (int v : *pinned_) controlled[parts.find(v)] = 1;
+    for (int v = 0; v < ns; ++v) {
+      if (!controlled[parts.find(v)] && !std::binary_search(boundary_.begin(), boundary_.end(), v))
+        still_.push_back(v);
+    }
+  }
   follow_ = std::make_unique<PoissonRepositioner>(sub_rest_, sub_faces_, shear_,
                                                   fixed_set(pinned_ ? *pinned_ : anchor_vertices_));
   for (int v : follow_->fixed()) {
@@ -202,13 +220,15 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
 MaterialDeformer::~MaterialDeformer() = default;
 
 std::vector<int> MaterialDeformer::fixed_set(const std::vector<int>& primary) const {
-  // Primary vertices first (in the caller's order), then region boundary vertices at rest.
-  // A boundary vertex is never also primary: the region edge must stay attached to the rest.
+  // Primary vertices first (in the caller's order), then region boundary vertices and parts
+  // without control, at rest. A boundary vertex is never also primary: the region edge must
+  // stay attached to the rest.
   std::vector<int> out;
   for (int v : primary) {
     if (!std::binary_search(boundary_.begin(), boundary_.end(), v)) out.push_back(v);
   }
   out.insert(out.end(), boundary_.begin(), boundary_.end());
+  out.insert(out.end(), still_.begin(), still_.end());
   return out;
 }
 

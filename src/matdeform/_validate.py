@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import numpy as np
 
 
@@ -54,6 +57,57 @@ def check_stiffness_ratio(a: np.ndarray, name: str) -> None:
             f"stiffness ratio max/min = {a.max() / a.min():.3g} is above 1e12; raise the smallest "
             "values (only ratios matter)",
         )
+
+
+# The largest count or index the core's 32-bit ints hold.
+MAX_INT = 2**31 - 1
+
+
+def as_real(
+    x,
+    name: str,
+    lo: float,
+    hi: float = math.inf,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    allow_inf: bool = False,
+) -> float:
+    """A real number (Python or numpy, not bool or str) in [lo, hi], each end open on request;
+    finite unless allow_inf (then +inf passes when hi is inf)."""
+    lo_s = f"({lo:g}" if lo_open else f"[{lo:g}"
+    hi_s = (
+        ("inf]" if allow_inf else "inf)")
+        if hi == math.inf
+        else f"{hi:g}" + (")" if hi_open else "]")
+    )
+    what = f"a {'' if allow_inf else 'finite '}value in {lo_s}, {hi_s}"
+    if isinstance(x, bool) or not isinstance(x, numbers.Real):
+        raise _fail(name, f"expected {what}, got {type(x).__name__} {x!r}")
+    v = float(x)
+    ok = (
+        (math.isfinite(v) or (allow_inf and v == math.inf and hi == math.inf))
+        and (v > lo if lo_open else v >= lo)
+        and (v < hi if hi_open else v <= hi)
+    )
+    if not ok:
+        raise _fail(name, f"expected {what}, got {v!r}")
+    return v
+
+
+def as_count(x, name: str, lo: int = 0, hi: int = MAX_INT) -> int:
+    """An integer (Python or numpy, not bool) in [lo, hi]; hi defaults to what a C int holds."""
+    if isinstance(x, bool) or not isinstance(x, numbers.Integral):
+        raise _fail(name, f"expected an integer in [{lo}, {hi}], got {type(x).__name__} {x!r}")
+    if not lo <= int(x) <= hi:
+        raise _fail(name, f"expected an integer in [{lo}, {hi}], got {int(x)}")
+    return int(x)
+
+
+def as_bool(x, name: str) -> bool:
+    """True or False (numpy's too); anything else, even truthy, is refused."""
+    if not isinstance(x, (bool, np.bool_)):
+        raise _fail(name, f"expected True or False, got {type(x).__name__} {x!r}")
+    return bool(x)
 
 
 def as_float_array(x, name: str) -> np.ndarray:

@@ -17,7 +17,7 @@ import bpy
 import numpy as np
 import pytest
 from helpers import RecordingLayout, evaluated, rest, tube, two_end_anchors
-from material_deform import bake, farm_job
+from material_deform import bake, bridge, farm_job
 from material_deform.pointcache import read_pc2
 
 REPO = Path(__file__).resolve().parents[2]
@@ -36,7 +36,7 @@ def animate(empty, dx=1.5, turn=0.8, last=FRAMES[-1]):
     empty.rotation_euler.y = turn
     empty.keyframe_insert("location", frame=last)
     empty.keyframe_insert("rotation_euler", frame=last)
-    for fc in empty.animation_data.action.fcurves:
+    for fc in bridge.action_fcurves(empty.animation_data):  # slotted in 4.4+, no .fcurves in 5.0
         for k in fc.keyframe_points:
             k.interpolation = "LINEAR"
 
@@ -286,8 +286,9 @@ def test_a_failing_chunk_fails_its_task_blocks_the_merge_and_runs_again(tmp_path
     assert "ERROR: no chunk holds frame(s) 5-12 of 'Material'" in merge.stdout, merge.stdout
     assert not (out / "Material.pc2").exists() and not list(out.glob("*.blend"))
 
-    for fc in [fc for fc in empty.animation_data.action.fcurves if fc.data_path == "scale"]:
-        empty.animation_data.action.fcurves.remove(fc)  # fixed
+    fcurves = bridge.fcurve_collection(empty.animation_data)
+    for fc in [fc for fc in fcurves if fc.data_path == "scale"]:
+        fcurves.remove(fc)  # fixed
     empty.scale = (1.0, 1.0, 1.0)
     bpy.ops.wm.save_mainfile()
     shipped = json.loads((bundle / "openjd_params.json").read_text())

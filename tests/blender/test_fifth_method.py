@@ -83,3 +83,28 @@ def test_a_fifth_method_binds_poses_shows_its_settings_and_leaves_cleanly():
     with pytest.raises(KeyError):
         methods.get(TOY)
     assert [m.key for m in methods.all_methods()] == menu_keys(obj)
+
+
+def test_a_method_whose_solve_takes_no_rotations_is_refused_when_it_registers():
+    """Every solve gets the anchors' rotation vectors (docs/methods.md): a method written
+    without the argument fails at once, naming it, instead of on the first twist."""
+
+    class Old(methods.Method):
+        key, number = "OLD_SIGNATURE", 91
+
+        def solve(self, solver, transforms, state, budget, progress=None):
+            raise AssertionError("never called")
+
+    with pytest.raises(ValueError, match="rotations=None"):
+        methods.register_method(Old())
+    with pytest.raises(KeyError):
+        methods.get("OLD_SIGNATURE")
+
+    class Keywords(Old):
+        key, number = "KEYWORDS", 92
+
+        def solve(self, solver, transforms, state, budget, progress=None, **kw):
+            raise AssertionError("never called")
+
+    methods.register_method(Keywords())  # **kwargs takes it
+    methods.unregister_method("KEYWORDS")

@@ -35,7 +35,8 @@ class ToyTranslateMethod(Method):
         # the solve sees only the solver and its state: hand the live setting over
         entry.state["strength"] = float(self.settings_of(obj).strength)
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations: the anchors' turns (None below half a turn); a translation ignores them
         shift = transforms[:, :3, 3].mean(axis=0)  # (3,) in the mesh's local space
         return Result(solver + state.get("strength", 1.0) * shift)
 

@@ -8,12 +8,23 @@ One module per kind of data; the rest of the add-on uses the names re-exported h
 - ``attributes``: vertex groups, attributes, colour attributes
 - ``objects``: modes, the Edit-Mode selection, Empties, world matrices
 - ``shape_keys``: the output key and its record, bake keys, example keys
+- ``animation``: transform animation evaluated at any frame (without changing it)
 - ``scene``: viewports, status text, frames, file paths, the point-cache modifier
 - ``arrays``: the bulk copies they share
 """
 
 from __future__ import annotations
 
+from .animation import (
+    Motion,
+    action_fcurves,
+    changed_objects,
+    curves_fingerprint,
+    fcurve_collection,
+    relevant_objects,
+    scene_frame,
+    structure_fingerprint,
+)
 from .arrays import (
     read_key_into,
 )
@@ -86,15 +97,18 @@ from .shape_keys import (
     BAKE_PREFIX,
     OUTPUT_KEY,
     POSE_RECORD,
+    ROTATIONS,
     bake_key,
     bake_key_names,
     ensure_output_key,
     is_reference_key,
     key_record,
+    key_rotations,
     output_key,
     remove_bake_keys,
     remove_output,
     set_key_record,
+    set_key_rotations,
     set_output_value,
     shape_key_info,
     shape_key_positions,
@@ -103,6 +117,17 @@ from .shape_keys import (
 
 __all__ = [
     "BAKE_PREFIX",
+    "Motion",
+    "ROTATIONS",
+    "action_fcurves",
+    "changed_objects",
+    "curves_fingerprint",
+    "fcurve_collection",
+    "key_rotations",
+    "relevant_objects",
+    "scene_frame",
+    "set_key_rotations",
+    "structure_fingerprint",
     "BEND_ATTR",
     "BEND_AXES_ATTR",
     "CACHE_MODIFIER",

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..errors import BindError
+from .animation import fcurve_collection
 from .arrays import _get, _raw_copy_into_key
 
 OUTPUT_KEY = "Material Deform"
@@ -86,6 +87,31 @@ def set_key_record(obj, text: str) -> None:
         keys[POSE_RECORD] = text
 
 
+ROTATIONS = "material_deform_rotations"  # custom property of the Key: the vectors it shows
+
+
+def key_rotations(obj, count: int) -> np.ndarray | None:
+    """(count,3) rotation vectors the output key was last solved with (saved with it, restored
+    by undo with it), None if there are none of that shape."""
+    keys = obj.data.shape_keys
+    got = None if keys is None else keys.get(ROTATIONS)
+    if got is None:
+        return None
+    try:
+        v = np.array(got[:], dtype=np.float64)
+    except (TypeError, ValueError):
+        return None
+    if v.shape != (3 * count,) or not np.isfinite(v).all():
+        return None
+    return v.reshape(count, 3)
+
+
+def set_key_rotations(obj, vectors) -> None:
+    keys = obj.data.shape_keys
+    if keys is not None:
+        keys[ROTATIONS] = np.asarray(vectors, dtype=np.float64).ravel().tolist()
+
+
 def write_key(obj, kb, positions) -> None:
     """Hot path: one bulk copy into the shape key, then the Key tagged for re-evaluation.
 
@@ -139,23 +165,6 @@ def bake_key(obj, frame, positions) -> str:
     return name
 
 
-def _fcurves(id_data):
-    """The F-curves animating ``id_data`` (slotted actions in 4.4+), None without any."""
-    ad = id_data.animation_data
-    if ad is None or ad.action is None:
-        return None
-    slot = getattr(ad, "action_slot", None)
-    if slot is not None:
-        try:
-            from bpy_extras.anim_utils import action_get_channelbag_for_slot
-        except ImportError:
-            pass
-        else:
-            bag = action_get_channelbag_for_slot(ad.action, slot)
-            return None if bag is None else bag.fcurves
-    return getattr(ad.action, "fcurves", None)
-
-
 def bake_key_names(obj) -> list[str]:
     keys = obj.data.shape_keys
     if keys is None:
@@ -169,7 +178,7 @@ def remove_bake_keys(obj) -> int:
     if not names:
         return 0
     keys = obj.data.shape_keys
-    fcurves = _fcurves(keys)
+    fcurves = fcurve_collection(keys.animation_data)
     if fcurves is not None:
         paths = {f'key_blocks["{n}"].value' for n in names}
         for fc in [fc for fc in fcurves if fc.data_path in paths]:

@@ -6,6 +6,7 @@ imports them, so no method imports the package that imports it.
 
 from __future__ import annotations
 
+import inspect
 from dataclasses import dataclass
 
 import numpy as np
@@ -75,13 +76,24 @@ class Method:
         raise NotImplementedError
 
     def solve(
-        self, solver, transforms: np.ndarray, state: dict, budget: int | None, progress=None
+        self,
+        solver,
+        transforms: np.ndarray,
+        state: dict,
+        budget: int | None,
+        progress=None,
+        rotations: np.ndarray | None = None,
     ) -> Result:
         """Positions for the anchor transforms (k,4,4), float64, each the motion of anchor a
         since bind in the mesh's local space. ``budget``: iterations for one live update, None
         to run to convergence (Settle, Bake). ``state`` is kept per object between calls.
         ``progress``: None or ``progress(fraction, text)``, which a long solve may call now and
-        then (Settle's progress bar and status text)."""
+        then (Settle's progress bar and status text). ``rotations``: (k,3) float64 rotation
+        vectors (axis times angle, radians, any length), one per anchor, each a log of the
+        rotation factor of its transform: the branch to blend, carrying the turns past half a
+        turn (a 540-degree twist, not -180); None when every anchor turned by less than half a
+        turn (the principal logs are then the branch). A method that blends or constrains
+        rotations uses them; one that sees only positions may ignore them."""
         raise NotImplementedError
 
     def check_live(self, obj, entry, depsgraph) -> None:
@@ -139,6 +151,12 @@ def register_method(method: Method) -> Method:
     taken = {m.number for m in _methods.values()}
     if not method.key or method.key in _methods or method.number < 0 or method.number in taken:
         raise ValueError(f"method {method.key!r}: key empty or taken, or number taken")
+    params = inspect.signature(method.solve).parameters
+    if "rotations" not in params and not any(p.kind == p.VAR_KEYWORD for p in params.values()):
+        raise ValueError(
+            f"method {method.key!r}: solve() must accept rotations=None (the anchors' rotation "
+            "vectors, docs/methods.md)"
+        )
     _methods[method.key] = method
     return method
 

@@ -371,7 +371,9 @@ class EdgeMethod(Method):
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
         return Solver(dfm, rest, constrained, owner_full[verts], dfm.diagonal, len(rest), s["bend"])
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations: ignored for now (the anchor vertices sit alike at 180 and 540 degrees; the
+        # turns are to give the iteration its start)
         p = state.get("params") or _default_params()
         t = np.asarray(transforms, dtype=np.float64)
         r = solver.rest[solver.constrained]

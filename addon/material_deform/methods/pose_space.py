@@ -297,7 +297,8 @@ class PoseSpaceMethod(Method):
             rot = np.stack([rf.T @ _rotation(transforms[j]) for j in solver.joints])
         return hp, rot
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations ignored: the core takes joints as matrices (docs/pose_space.md, turns)
         hp, rot = self._targets(solver, transforms)
         x = solver.deformer.deform(hp, rot)
         state["weights"] = solver.deformer.example_weights

@@ -173,7 +173,9 @@ class PyramidMethod(Method):
         t = np.asarray(transforms, np.float64)[solver.owner]
         return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations: ignored for now (the control vertices sit alike at 180 and 540 degrees; the
+        # turns are to give the iteration its start)
         # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
         # before any live update: the defaults then)
         tol, stretch, most = state.get("settings", (1e-6, True, 20000))

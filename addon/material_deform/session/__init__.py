@@ -11,6 +11,7 @@ module per concept, each importing only those above it in this list:
 
 - ``state``: what is kept per object at run time (cache, stale reasons, settling objects)
 - ``pose``: the anchors' Empties, the bind pose and each anchor's motion since bind
+- ``twist``: which branch of each anchor's rotation the methods blend (turns past half a turn)
 - ``output``: the output shape key's guards and the record saved with it
 - ``binding``: Bind, Rebind, Reset, and whether a bind still fits (fingerprints, undo, loading)
 - ``live``: the live update, Update, Settle and the handler body
@@ -23,7 +24,7 @@ from __future__ import annotations
 from ..inputs import gather, method_of
 from ..model import BindError, Entry, Inputs, settings
 from ..updates import Listener
-from . import binding, live, output, pose, state
+from . import binding, live, output, pose, state, twist
 from .binding import (
     after_undo,
     bind,
@@ -44,6 +45,7 @@ from .state import (
     stale_reason,
     unsettled,
 )
+from .twist import forget_changes, note_changes
 
 # what a changed setting asks of the session (connected by handlers.register)
 LISTENER = Listener(
@@ -66,6 +68,7 @@ __all__ = [
     "clear_cache",
     "compute",
     "entry_for",
+    "forget_changes",
     "full_check",
     "gather",
     "has_bind_pose",
@@ -73,6 +76,7 @@ __all__ = [
     "live_update",
     "mark_stale",
     "method_of",
+    "note_changes",
     "output",
     "owner_of",
     "place_new_anchor",
@@ -88,6 +92,7 @@ __all__ = [
     "stale_reason",
     "state",
     "transforms_now",
+    "twist",
     "unbind",
     "unsettled",
 ]

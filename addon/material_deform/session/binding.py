@@ -12,8 +12,9 @@ from .. import anchor_math as am
 from .. import bridge
 from ..inputs import gather, method_of
 from ..model import BindError, Entry, Inputs, settings
+from . import twist
 from .output import _record
-from .pose import _bind_pose, _empty_reason, _matrix_key
+from .pose import _bind_pose, _empty_reason, _matrix_key, has_bind_pose
 from .state import _cache, _stale, _stop, _unsettled
 
 
@@ -47,23 +48,33 @@ def _diff_reason(obj, stored, current) -> str:
     return "Changed since bind: " + ", ".join(changed) + " - click Rebind"
 
 
-def _pose_positions(obj, entry: Entry, m_obj_bind, bind_m, budget=None) -> np.ndarray:
+def _pose_positions(
+    obj, scene, entry: Entry, m_obj_bind, bind_m, frames, shown, budget=None
+) -> tuple[np.ndarray, np.ndarray]:
     """Positions (n,3) of the full mesh for the Empties' current placement, measured from the
-    given bind pose."""
+    given bind pose (bind frames ``frames`` (k,); ``shown``: the vectors to continue followed
+    anchors from, or None), and the anchors' rotation vectors (k,3)."""
     m_obj = bridge.world_matrix(obj)
     now = np.stack([bridge.world_matrix(a.empty) for a in settings(obj).anchors])
-    if np.array_equal(now, bind_m) and np.array_equal(m_obj, m_obj_bind):
-        return entry.rest.copy()
+    at_rest = np.array_equal(now, bind_m) and np.array_equal(m_obj, m_obj_bind)
+    tw = entry.extra["twist"] = twist.Twist(shown)
     try:
-        t = am.anchor_transforms(m_obj, now, bind_m, m_obj_bind)
-        res = method_of(obj).solve(entry.solver, t, entry.state, budget)
+        t = None if at_rest else am.anchor_transforms(m_obj, now, bind_m, m_obj_bind)
+        bind = (bind_m, m_obj_bind, b"", np.asarray(frames, dtype=np.int64))
+        frame, mkey = bridge.scene_frame(scene), _matrix_key(obj, None)
+        v, rotations = tw.vectors(obj, scene, frame, mkey, lambda: t, bind, m_obj, full=True)
+        if t is None and rotations is None:
+            return entry.rest.copy(), v
+        if t is None:
+            t = np.tile(np.eye(4), (len(bind_m), 1, 1))
+        res = method_of(obj).solve(entry.solver, t, entry.state, budget, rotations=rotations)
     except ValueError as exc:  # e.g. an Empty scaled to zero or mirrored (det <= 0)
         raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
     if entry.used is None:
-        return res.positions
+        return res.positions, v
     out = entry.rest.copy()
     out[entry.used] = res.positions
-    return out
+    return out, v
 
 
 def bind(
@@ -85,8 +96,15 @@ def bind(
     progress(0.3, "Material Deform: precomputing the solver")
     entry = _build(inp, obj)
     m_obj_bind, bind_m = _bind_pose(obj, keep)
+    # an anchor keeping its bind pose keeps its bind frame and its turns; the others start now
+    kept = np.array([keep and has_bind_pose(a) for a in s.anchors], dtype=bool)
+    now = scene.frame_current
+    frames = [a.bind_frame if k else now for a, k in zip(s.anchors, kept, strict=True)]
+    shown = bridge.key_rotations(obj, len(s.anchors)) if s.bound else None
+    if shown is not None:
+        shown[~kept] = 0.0
     progress(0.8, "Material Deform: solving the current pose")
-    x = _pose_positions(obj, entry, m_obj_bind, bind_m)
+    x, vectors = _pose_positions(obj, scene, entry, m_obj_bind, bind_m, frames, shown)
     kb_name = s.output_key_name or bridge.OUTPUT_KEY
     if bridge.output_key(obj, kb_name) is None and bridge.output_key(obj) is not None:
         kb_name = bridge.OUTPUT_KEY  # an old key of the default name: reuse it
@@ -96,8 +114,9 @@ def bind(
     # not outlive a write phase that stops half way.
     _cache.pop(obj.as_pointer(), None)
     method_of(obj).commit(obj, inp)
-    for anc, m in zip(s.anchors, bind_m, strict=True):
+    for anc, m, f in zip(s.anchors, bind_m, frames, strict=True):
         anc.bind_matrix = m.ravel().tolist()
+        anc.bind_frame = f
         anc.bound_empty = anc.empty
     s.obj_bind_matrix = m_obj_bind.ravel().tolist()
     s.fp_topology, s.fp_anchors, s.fp_stiffness, s.fp_method = inp.fp
@@ -107,8 +126,11 @@ def bind(
         s.created_basis = created
     s.output_key_name = kb.name
     bridge.write_key(obj, kb, x)  # at the bind pose: the rest shape exactly
+    bridge.set_key_rotations(obj, vectors)
     s.bound = True
-    entry.last_key = _matrix_key(obj, None)
+    rotations = twist.principal_or(vectors)
+    entry.last_key = _matrix_key(obj, None) + (b"" if rotations is None else rotations.tobytes())
+    entry.extra["twist"].unsaved = False
     # Bind solves a kept pose without the live settings (they reach an iterative method only
     # through the live checks): its result counts as settled only at the bind pose itself
     at_rest = x is entry.rest or np.array_equal(x, entry.rest)
@@ -224,6 +246,8 @@ def after_undo(scene, objects) -> None:
         entry.state.clear()
         entry.extra.pop("settings_sig", None)  # and the settings may be other ones
         entry.extra.pop("bind_matrices", None)  # so were the bind matrices
+        # and the vectors saved with the key; the animation may be another one too
+        entry.extra.pop("twist", None)
         entry.key_pointer = 0  # and its block may live elsewhere now
     for obj in scene.objects:
         key = obj.as_pointer()

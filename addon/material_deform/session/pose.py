@@ -67,11 +67,12 @@ def _empty_reason(obj) -> str:
     return ""
 
 
-def place_new_anchor(obj, empty, vertices) -> None:
+def place_new_anchor(obj, empty, vertices, frame: int) -> None:
     """An anchor added to a bound, posed mesh: move its new Empty (made at the faces' rest
     place) onto the faces as the mesh shows them, by the rigid motion that best fits their
-    rest positions to their posed ones, and give it the rest place as its bind pose. A rebind
-    then keeps the mesh as it is instead of pulling these faces back to rest."""
+    rest positions to their posed ones, and give it the rest place as its bind pose (at
+    ``frame``, the scene's). A rebind then keeps the mesh as it is instead of pulling these
+    faces back to rest."""
     s = settings(obj)
     key = bridge.output_key(obj, s.output_key_name or bridge.OUTPUT_KEY)
     if not s.bound or key is None or bridge.is_reference_key(obj, key):
@@ -91,6 +92,7 @@ def place_new_anchor(obj, empty, vertices) -> None:
     bridge.set_world_matrix(empty, m_obj @ k @ inv_obj @ rest_world)
     anc = next(a for a in s.anchors if a.empty == empty)
     anc.bind_matrix = (m_obj_bind @ inv_obj @ rest_world).ravel().tolist()
+    anc.bind_frame = frame
     anc.bound_empty = empty
     entry = _cache.get(obj.as_pointer())
     if entry is not None:
@@ -156,8 +158,8 @@ def _matrix_key(obj, depsgraph, mats=None) -> bytes:
 
 def _bind_matrices(obj, entry: Entry) -> tuple:
     """(k,4,4) anchor and (4,4) object matrices at bind (None for files bound before the latter
-    was kept), and the anchors' bytes; kept in the entry: they change only when binding (a new
-    entry), placing an anchor and on undo, which drop them."""
+    was kept), the anchors' bytes and their (k,) bind frames; kept in the entry: they change
+    only when binding (a new entry), placing an anchor and on undo, which drop them."""
     got = entry.extra.get("bind_matrices")
     if got is None:
         s = settings(obj)
@@ -166,7 +168,9 @@ def _bind_matrices(obj, entry: Entry) -> tuple:
         if not m_obj_bind.any():  # bound before the object's matrix was kept: never moved
             m_obj_bind = None
         bind_m = bind_m.reshape(-1, 4, 4)
-        got = entry.extra["bind_matrices"] = (bind_m, m_obj_bind, (bind_m + 0.0).tobytes())
+        frames = np.array([a.bind_frame for a in s.anchors], dtype=np.int64)
+        got = (bind_m, m_obj_bind, (bind_m + 0.0).tobytes(), frames)
+        entry.extra["bind_matrices"] = got
     return got
 
 
@@ -192,7 +196,7 @@ def transforms_now(
     if m_obj is None:
         raise BindError("Object is not evaluated here")
     now = mats if isinstance(mats, np.ndarray) else np.stack(mats)
-    bind_m, m_obj_bind, bind_bytes = _bind_matrices(obj, entry)
+    bind_m, m_obj_bind, bind_bytes, _frames = _bind_matrices(obj, entry)
     if m_obj_bind is None:  # as if the object never moved
         m_obj_bind = m_obj
     # Compared as bytes, 3 us less than np.array_equal; + 0.0 turns -0.0 into 0.0 first.

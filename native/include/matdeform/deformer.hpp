@@ -35,6 +35,8 @@ struct DeformerOptions {
 //    and each component keeps its vertex mean at rest (factored on the first such call, then
 //    cached).
 //  - with a region, its boundary vertices are always fixed at rest in addition.
+//  - a part (vertices joined by faces) with no anchor face and no pinned vertex is fixed at
+//    rest: deform() returns its rest positions bit for bit.
 //
 // Threads: deform() and face_transforms() may be called from several threads at once. Calls on
 // one deformer are serialised (they share its workspaces); calls on different deformers run
@@ -107,6 +109,8 @@ class MaterialDeformer {
   // Per fixed vertex of follow_ (its order): the [begin, end) of its anchors in av_anchors_,
   // empty for boundary and non-anchor vertices, so that deform() does no searching.
   std::vector<std::pair<int, int>> follow_anchors_;
+  // Region vertex ids in parts with no anchor face and no pinned vertex: fixed at rest.
+  std::vector<int> still_;
   mutable std::unique_ptr<PoissonRepositioner> follow_;
   mutable std::unique_ptr<PoissonRepositioner> free_;
   // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the
