@@ -9,8 +9,10 @@ changing them costs no rebind.
 
 Live updates run ``live_iterations`` iterations warm-started from the previous result and say
 ``done=False`` until the largest move is below tolerance, so the session keeps updating from a
-timer until the mesh has settled; Settle and Bake run to convergence (up to
-``settle_iterations``).
+timer until the mesh has settled; Settle, renders and Bake run to convergence (up to
+``settle_iterations``) from the frame's own start. Past half a turn the session's rotation
+vectors give that start its turns (``EdgeDeformer.solve(rotation_vectors=...)``), and live
+updates also start each new pose from it (docs/edge.md, "Twists past half a turn").
 """
 
 from __future__ import annotations
