@@ -13,7 +13,7 @@ a turn (docs/edge.md, "Twists past half a turn"), whatever the start.
 import edge_reference as ref
 import numpy as np
 import pytest
-from conftest import rotation
+from conftest import ring_turns, rotation
 
 import matdeform as md
 from matdeform import shapes
@@ -44,12 +44,9 @@ def vectors(theta):
     return np.array([[0.0, 0.0, 0.0], [theta, 0.0, 0.0]])
 
 
-def ring_turns(v, x):
+def turns_of(v, x):
     """(N_ALONG+1,) turn of each ring about x, from positions, unwrapped along the tube."""
-    rings = slice(0, (N_ALONG + 1) * N_AROUND)
-    rest = np.arctan2(v[rings, 2], v[rings, 1]).reshape(N_ALONG + 1, N_AROUND)
-    now = np.arctan2(x[rings, 2], x[rings, 1]).reshape(N_ALONG + 1, N_AROUND)
-    return np.unwrap(np.angle(np.exp(1j * (now - rest)).mean(axis=1)))
+    return ring_turns(v, x, N_AROUND, N_ALONG)
 
 
 def test_anchors_are_the_caps(tube):
@@ -67,7 +64,7 @@ def test_twist_0_to_720_is_linear_along_the_tube_without_a_jump(tube):
     for theta in thetas:
         x = d.solve(targets(v, con, k_lo, theta), iterations=2000, rotation_vectors=vectors(theta))
         assert d.last_iterations < 2000  # converged to tol
-        turns = ring_turns(v, x)
+        turns = turns_of(v, x)
         # The middle ring turns by exactly half (the tube is symmetric end for end; measured
         # 1e-12 rad).
         assert abs(turns[MIDDLE] - theta / 2) <= 1e-6, np.degrees(turns[MIDDLE])
@@ -91,7 +88,7 @@ def test_without_vectors_a_turn_past_half_unwinds(tube):
     v, f, con, k_lo, d = tube
     theta = np.radians(210)
     x = d.solve(targets(v, con, k_lo, theta), iterations=2000)
-    assert abs(ring_turns(v, x)[MIDDLE] - np.radians(-75)) < 1e-6
+    assert abs(turns_of(v, x)[MIDDLE] - np.radians(-75)) < 1e-6
     # 720 degrees: every anchor vertex back at rest, and so is the whole tube
     x = d.solve(targets(v, con, k_lo, 4 * np.pi), iterations=2000)
     assert np.abs(x - v).max() < 1e-9
@@ -116,18 +113,18 @@ def test_the_start_depends_only_on_the_frame(tube):
     # start carries only 30 more degrees, the right way; from 0 degrees the fitted carry takes
     # the short way round and unwinds)
     prev = d.solve(pos, iterations=2000, initial=d.solve(targets(v, con, k_lo, 0.0), 5))
-    assert abs(ring_turns(v, prev)[MIDDLE] - theta / 2) > np.pi / 2
+    assert abs(turns_of(v, prev)[MIDDLE] - theta / 2) > np.pi / 2
 
 
 def test_a_whole_number_of_turns_is_carried_although_no_anchor_moved(tube):
     v, f, con, k_lo, d = tube
     x = d.solve(v[con], iterations=2000, rotation_vectors=vectors(2 * np.pi))
-    turns = ring_turns(v, x)
+    turns = turns_of(v, x)
     assert abs(turns[MIDDLE] - np.pi) < 1e-6
     assert abs(turns[-1] - 2 * np.pi) < 1e-9
     # the other way round
     x = d.solve(v[con], iterations=2000, rotation_vectors=vectors(-2 * np.pi))
-    assert abs(ring_turns(v, x)[MIDDLE] + np.pi) < 1e-6
+    assert abs(turns_of(v, x)[MIDDLE] + np.pi) < 1e-6
 
 
 def test_first_step_with_vectors_equals_the_dense_reference():
