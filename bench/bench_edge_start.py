@@ -19,9 +19,9 @@ their pose positions, poses in file order), error = RMS |x - pose| / diagonal; a
 the axis 0..720 degrees in 30-degree steps, error = the largest deviation of a ring's turn from
 the linear closed form theta x / L, in degrees; frames solved in order (what "previous" uses).
 
-    python bench/bench_edge_start.py [--stretch 1] [--radius 0.5] [--cat-only | --twist-only]
+    python bench/bench_edge_start.py [--stretch 1] [--radius 0.3] [--cat-only | --twist-only]
 
-The twist runs at stretch 1 and radius 0.5 by default: a softer or thicker tube has no twisted
+The twist runs at stretch 1 and radius 0.3 by default: a softer or thicker tube has no twisted
 fixed point that far (docs/edge.md, "Twists past half a turn").
 """
 
@@ -169,7 +169,7 @@ def twist(stretch, radius, n_around=16, n_along=60):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--stretch", type=float, default=1.0)
-    ap.add_argument("--radius", type=float, default=0.5)
+    ap.add_argument("--radius", type=float, default=0.3)
     ap.add_argument("--cat-only", action="store_true")
     ap.add_argument("--twist-only", action="store_true")
     a = ap.parse_args()

@@ -289,8 +289,8 @@ struct EdgeDeformer::Impl {
   // caller's or those joined by mesh edges. Each is fitted with a rotation in solve().
   std::vector<int> anchor_ptr, anchor_idx;
   std::vector<int> anchor_of;  // (nc,) anchor of each constrained vertex
-  std::vector<double> carry;  // 4 per slot: rotation quaternion of the carried estimation
-  V3 centre = V3::Zero();     // of the rest bounding box
+  std::vector<double> carry;   // 4 per slot: rotation quaternion of the carried estimation
+  V3 centre = V3::Zero();      // of the rest bounding box
 
   // Largest coordinate distance of rows of X from the rest centre, in rest diagonals.
   double reach(const Vertices& X, double diag) const {
@@ -344,7 +344,8 @@ bool EdgeDeformer::Impl::carry_rotations(const Vec4d* from, const Vec4d* to,
       Eigen::Matrix3d R;
       if (fit_anchor(anchor_ptr, anchor_idx, g, at(from), at(to), &R)) rot[g] = rotation_log(R);
     }
-    largest = std::max(largest, rot[g].norm());
+    // an anchor id without vertices (caller anchors) turns nothing
+    if (anchor_ptr[g + 1] > anchor_ptr[g]) largest = std::max(largest, rot[g].norm());
   }
   if (!(largest > kCarryMinAngle) || nf == 0) return false;
 

@@ -183,6 +183,12 @@ def test_caller_anchors_group_the_fit_and_the_vectors():
     d2 = md.EdgeDeformer(v, f, c, anchors=np.full(len(c), 2))
     assert d2.num_anchors == 3
     d2.solve(v[c] @ R.T, iterations=1, rotation_vectors=[[5.0, 0, 0], [0, 0, 9.0], [0, theta, 0]])
+    # and turn nothing: with the only real anchor under 15 degrees the step is the plain one
+    small = rotation([0, 1, 0], 0.1)
+    x = d2.solve(
+        v[c] @ small.T, iterations=1, rotation_vectors=[[5.0, 0, 0], [0, 0, 9], [0, 0.1, 0]]
+    )
+    np.testing.assert_array_equal(x, d2.solve(v[c] @ small.T, iterations=1))
 
 
 @pytest.mark.parametrize(
