@@ -7,6 +7,7 @@
 #include <cstdint>
 #include <limits>
 #include <mutex>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
@@ -284,11 +285,12 @@ struct EdgeDeformer::Impl {
   std::vector<double> part_move;  // per part: largest squared move of an iteration
   std::mutex busy;  // solve() calls from several threads (the GIL is released) take turns
 
-  // Anchors: the constrained vertices split into parts connected by mesh edges (CSR over
-  // constrained indices, caller order). Each is fitted with a rotation in solve().
+  // Anchors: groups of constrained vertices (CSR over constrained indices, caller order), the
+  // caller's or those joined by mesh edges. Each is fitted with a rotation in solve().
   std::vector<int> anchor_ptr, anchor_idx;
-  std::vector<double> carry;  // 4 per slot: rotation quaternion of the carried estimation
-  V3 centre = V3::Zero();     // of the rest bounding box
+  std::vector<int> anchor_of;  // (nc,) anchor of each constrained vertex
+  std::vector<double> carry;   // 4 per slot: rotation quaternion of the carried estimation
+  V3 centre = V3::Zero();      // of the rest bounding box
 
   // Largest coordinate distance of rows of X from the rest centre, in rest diagonals.
   double reach(const Vertices& X, double diag) const {
@@ -298,40 +300,52 @@ struct EdgeDeformer::Impl {
     return r / diag;
   }
 
-  bool carry_rotations(const Vec4d* from, const Vec4d* to);
+  bool carry_rotations(const Vec4d* from, const Vec4d* to, const Vectors3* given);
 };
 
+// Best-fit rotation of anchor g from the points from(c) to to(c) (constrained indices c); false
+// (no fit) for fewer than three points, points in a line, or a collapsed target.
+template <class From, class To>
+bool fit_anchor(const std::vector<int>& ptr, const std::vector<int>& idx, int g, From from, To to,
+                Eigen::Matrix3d* R) {
+  const int b = ptr[g], e = ptr[g + 1];
+  if (e - b < 3) return false;
+  V3 cf = V3::Zero(), ct = V3::Zero();
+  for (int q = b; q < e; ++q) {
+    cf += from(idx[q]);
+    ct += to(idx[q]);
+  }
+  cf /= e - b;
+  ct /= e - b;
+  Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+  for (int q = b; q < e; ++q) H += (to(idx[q]) - ct) * (from(idx[q]) - cf).transpose();
+  double trace;
+  return fit_rotation(H, R, &trace);
+}
+
 // The start when the anchors turn (see EdgeDeformer::solve): a rotation per anchor, the best
-// fit of its vertices from -> to (slots nf + c), spread over the free vertices by the system's
-// own response A_ff r_f = -A_fc r_c (rotation vectors r; vertices of anchors without a fit and
-// passive vertices hold 0), then turned into quaternions by slot in `carry`. False (carry
-// untouched) when no anchor turns by more than kCarryMinAngle.
-bool EdgeDeformer::Impl::carry_rotations(const Vec4d* from, const Vec4d* to) {
+// fit of its vertices from -> to (slots nf + c), or the caller's vectors `given` (num_anchors,3),
+// spread over the free vertices by the system's own response A_ff r_f = -A_fc r_c (rotation
+// vectors r; vertices of anchors without a fit and passive vertices hold 0), then turned into
+// quaternions by slot in `carry`. False (carry untouched) when no anchor turns by more than
+// kCarryMinAngle.
+bool EdgeDeformer::Impl::carry_rotations(const Vec4d* from, const Vec4d* to,
+                                         const Vectors3* given) {
   const int na = static_cast<int>(anchor_ptr.size()) - 1;
   std::vector<V3> rot(na, V3::Zero());
   double largest = 0.0;
   for (int g = 0; g < na; ++g) {
-    const int b = anchor_ptr[g], e = anchor_ptr[g + 1];
-    V3 cf = V3::Zero(), ct = V3::Zero();
-    for (int q = b; q < e; ++q) {
-      const Vec4d& x = from[nf + anchor_idx[q]];
-      const Vec4d& y = to[nf + anchor_idx[q]];
-      cf += V3(x[0], x[1], x[2]);
-      ct += V3(y[0], y[1], y[2]);
+    if (given) {
+      rot[g] = given->row(g).transpose();
+    } else {
+      const auto at = [&](const Vec4d* p) {
+        return [this, p](int c) { return V3(p[nf + c][0], p[nf + c][1], p[nf + c][2]); };
+      };
+      Eigen::Matrix3d R;
+      if (fit_anchor(anchor_ptr, anchor_idx, g, at(from), at(to), &R)) rot[g] = rotation_log(R);
     }
-    cf /= e - b;
-    ct /= e - b;
-    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
-    for (int q = b; q < e; ++q) {
-      const Vec4d& x = from[nf + anchor_idx[q]];
-      const Vec4d& y = to[nf + anchor_idx[q]];
-      H += (V3(y[0], y[1], y[2]) - ct) * (V3(x[0], x[1], x[2]) - cf).transpose();
-    }
-    Eigen::Matrix3d R;
-    double trace;
-    // No fit for fewer than three points, points in a line, or a collapsed target: no turn.
-    if (e - b >= 3 && fit_rotation(H, &R, &trace)) rot[g] = rotation_log(R);
-    largest = std::max(largest, rot[g].norm());
+    // an anchor id without vertices (caller anchors) turns nothing
+    if (anchor_ptr[g + 1] > anchor_ptr[g]) largest = std::max(largest, rot[g].norm());
   }
   if (!(largest > kCarryMinAngle) || nf == 0) return false;
 
@@ -555,26 +569,44 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
       fixed_list.push_back(v);
     }
   }
-  // Anchors: constrained vertices joined by mesh edges.
+  // Anchors: the caller's groups, else the constrained vertices joined by mesh edges.
   {
-    DisjointSets anchors(n);
-    std::vector<char> is_con(n, 0);
-    for (int v : constrained) is_con[v] = 1;
-    for (int e = 0; e < E; ++e) {
-      const int a = edges_(e, 0), b = edges_(e, 1);
-      if (is_con[a] && is_con[b]) anchors.unite(a, b);
-    }
-    std::vector<int> label(n, -1), count;
     std::vector<int> of(constrained.size());
-    for (size_t c = 0; c < constrained.size(); ++c) {
-      int& l = label[anchors.find(constrained[c])];
-      if (l < 0) {
-        l = static_cast<int>(count.size());
-        count.push_back(0);
+    int count_a = 0;
+    if (!options.anchors.empty()) {
+      if (options.anchors.size() != constrained.size()) {
+        throw std::invalid_argument("anchors: expected one id per constrained vertex (" +
+                                    std::to_string(constrained.size()) + "), got " +
+                                    std::to_string(options.anchors.size()));
       }
-      of[c] = l;
-      ++count[l];
+      for (size_t c = 0; c < constrained.size(); ++c) {
+        const int a = options.anchors[c];
+        // bounded so that a (count,3) array of rotation vectors stays a sane size
+        if (a < 0 || static_cast<size_t>(a) >= constrained.size()) {
+          throw std::invalid_argument("anchors: id " + std::to_string(a) + " outside [0, " +
+                                      std::to_string(constrained.size()) + ")");
+        }
+        of[c] = a;
+        count_a = std::max(count_a, a + 1);
+      }
+    } else {
+      DisjointSets anchors(n);
+      std::vector<char> is_con(n, 0);
+      for (int v : constrained) is_con[v] = 1;
+      for (int e = 0; e < E; ++e) {
+        const int a = edges_(e, 0), b = edges_(e, 1);
+        if (is_con[a] && is_con[b]) anchors.unite(a, b);
+      }
+      std::vector<int> label(n, -1);
+      for (size_t c = 0; c < constrained.size(); ++c) {
+        int& l = label[anchors.find(constrained[c])];
+        if (l < 0) l = count_a++;
+        of[c] = l;
+      }
     }
+    std::vector<int> count(count_a, 0);
+    for (int a : of) ++count[a];
+    d.anchor_of = of;
     d.anchor_ptr.assign(count.size() + 1, 0);
     for (size_t g = 0; g < count.size(); ++g) d.anchor_ptr[g + 1] = d.anchor_ptr[g] + count[g];
     d.anchor_idx.resize(constrained.size());
@@ -743,10 +775,53 @@ EdgeDeformer::~EdgeDeformer() = default;
 
 int EdgeDeformer::num_free() const { return impl_->nf; }
 
+int EdgeDeformer::num_anchors() const { return static_cast<int>(impl_->anchor_ptr.size()) - 1; }
+
+const std::vector<int>& EdgeDeformer::anchors() const { return impl_->anchor_of; }
+
 long long EdgeDeformer::process_factorizations() { return SparseCholesky::factorizations(); }
 
+// Rotation vectors of solve(): one finite row per anchor, each a log of the rotation fitted to
+// its anchor from rest to the constrained positions (where there is a fit), and the rest mesh
+// as the start.
+void EdgeDeformer::check_rotation_vectors(const Vertices& constrained_positions,
+                                          const Vertices* initial, const Vectors3& v) const {
+  const Impl& d = *impl_;
+  const int na = num_anchors();
+  if (v.rows() != na || v.cols() != 3) {
+    throw std::invalid_argument("rotation_vectors: expected shape (" + std::to_string(na) +
+                                ",3), one per anchor, got (" + std::to_string(v.rows()) + "," +
+                                std::to_string(v.cols()) + ")");
+  }
+  if (initial) {
+    throw std::invalid_argument(
+        "rotation_vectors: the start is then the rest mesh carried by them; initial must be "
+        "None");
+  }
+  const auto rest = [&](int c) { return V3(d.rest.row(d.slot_vertex[d.nf + c]).transpose()); };
+  const auto target = [&](int c) { return V3(constrained_positions.row(c).transpose()); };
+  for (int a = 0; a < na; ++a) {
+    const V3 va = v.row(a).transpose();
+    const std::string name = "rotation_vectors[" + std::to_string(a) + "]";
+    if (!va.allFinite()) throw std::invalid_argument(name + ": contains NaN or infinity");
+    Eigen::Matrix3d R;
+    if (!fit_anchor(d.anchor_ptr, d.anchor_idx, a, rest, target, &R)) continue;
+    const double err = rotation_vector_mismatch(va, R);
+    if (!(err <= kRotationVectorTolerance)) {
+      std::ostringstream msg;
+      msg << name << ": its exp differs from the rotation fitted to anchor " << a
+          << " (rest -> constrained_positions) by " << err << " rad (tolerance "
+          << kRotationVectorTolerance
+          << "); expected a log of that rotation, i.e. its principal log plus whole turns "
+             "about the same axis";
+      if (std::isnan(err)) msg << " (this vector, " << va.norm() << " rad, is too long)";
+      throw std::invalid_argument(msg.str());
+    }
+  }
+}
+
 Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSolveOptions& options,
-                             const Vertices* initial) {
+                             const Vertices* initial, const Vectors3* rotation_vectors) {
   Impl& d = *impl_;
   if (constrained_positions.rows() != d.nc) {
     throw std::invalid_argument("constrained_positions: expected shape (" + std::to_string(d.nc) +
@@ -783,6 +858,8 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   if (initial && !(d.reach(*initial, diag_) <= kMaxReach)) {
     throw std::invalid_argument(std::string("initial:") + far);
   }
+
+  if (rotation_vectors) check_rotation_vectors(constrained_positions, initial, *rotation_vectors);
 
   const std::lock_guard<std::mutex> lock(d.busy);
   const ParkWorkersOnExit park;
@@ -829,7 +906,10 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   // half turn the wrong way that no later iteration undoes). So when the anchors turn, the
   // first estimation step also turns each edge's rest quantities by the anchors' rotations
   // spread over the mesh (Impl::carry_rotations).
-  const bool carried = anchors_moved && d.carry_rotations(cur, next);
+  // Given rotation vectors are the turns from rest: carried whatever the positions show (a
+  // whole turn puts every anchor back where it was).
+  const bool carried = rotation_vectors ? d.carry_rotations(cur, next, rotation_vectors)
+                                        : anchors_moved && d.carry_rotations(cur, next, nullptr);
   const bool avx2 = cpu_has_avx2_fma();
   const int ng = static_cast<int>(d.groups.size());
   // Parallel parts of the estimation step, each scattering into its own accumulator. Below

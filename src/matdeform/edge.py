@@ -10,8 +10,10 @@ from ._validate import (
     as_faces,
     as_float_array,
     as_index_set,
+    as_int_array,
     as_mesh_vertices,
     as_real,
+    as_rotation_vectors,
     as_stiffness,
     as_vertices,
 )
@@ -43,6 +45,10 @@ class EdgeDeformer:
         kappa = |<f_i + f_j, v_i - v_j>| / (|f_i + f_j| |v_i - v_j|) (Eq. 13), computed from the
         field's part tangent to the rest surface; where f_i + f_j vanishes the edge is
         isotropic (kappa = 1). Edges along the field stay stiff, edges across it go soft.
+    anchors : (k,) int, the anchor id in [0, k) of each constrained vertex (in ``constrained``
+        order), or None: the constrained vertices joined by mesh edges, numbered by first
+        appearance. The first step fits one rotation per anchor, and ``solve``'s
+        ``rotation_vectors`` has one row per anchor (``num_anchors`` rows; ids may be unused).
 
     Defined behaviour: boundary edges, non-manifold edges and edges whose rest faces are
     degenerate have no bending term; vertices in no face, or in a connected part without a
@@ -60,6 +66,7 @@ class EdgeDeformer:
         bend: float = 1.0,
         edge_weight=None,
         direction=None,
+        anchors=None,
     ):
         v = as_mesh_vertices(vertices)
         n = v.shape[0]
@@ -74,9 +81,22 @@ class EdgeDeformer:
             e = len(_core.mesh_edges(f))
             w = as_stiffness(edge_weight, e, "edge_weight")
         d = None if direction is None else as_vertices(direction, "direction", rows=n)
+        a = None
+        if anchors is not None:
+            a = as_int_array(anchors, "anchors", 1)
+            if a.shape != c.shape:
+                raise ValueError(
+                    f"anchors: expected shape ({c.size},), one id per constrained vertex, "
+                    f"got {a.shape}"
+                )
+            if a.min() < 0 or a.max() >= c.size:
+                raise ValueError(
+                    f"anchors: ids must lie in [0, {c.size}), got [{a.min()}, {a.max()}]"
+                )
+            a = a.tolist()
         self._n, self._m = n, f.shape[0]
         self._constrained = c
-        self._core = _core.EdgeDeformer(v, f, c.tolist(), lam, mu, w, d)
+        self._core = _core.EdgeDeformer(v, f, c.tolist(), lam, mu, w, d, a)
 
     def solve(
         self,
@@ -88,6 +108,8 @@ class EdgeDeformer:
         gravity=(0.0, 0.0, 0.0),
         initial=None,
         relaxation: float = 1.0,
+        *,
+        rotation_vectors=None,
     ) -> np.ndarray:
         """Run up to ``iterations`` E-M iterations; returns the last iterate (n,3) float64.
 
@@ -111,6 +133,16 @@ class EdgeDeformer:
             times the E-M step (1 is the paper's iteration; a carried first step is taken in
             full). The fixed points are the same; a value below 1 (e.g. 0.8) damps the
             two-cycles the plain iteration can fall into when constraints are far from rest.
+        rotation_vectors : (num_anchors,3) axis * angle (radians, any length), each anchor's
+            turn from rest, e.g. 4 pi about the axis for two whole turns (see
+            ``unwrap_rotations``), or None. Positions alone cannot tell 180 from 540 degrees;
+            with the vectors the start is the rest mesh and the first step carries these turns
+            (when some vector exceeds 15 degrees) instead of the fitted ones, so the result
+            depends on the arguments only, never on an earlier solve. ``initial`` must then be
+            None (continue with ``initial=`` and no vectors: calls compose as before). Row a
+            must be a log of the rotation fitted to anchor a from rest to
+            ``constrained_positions`` within ``ROTATION_VECTOR_TOLERANCE`` (1e-4 rad), for
+            anchors with such a fit (3+ vertices not in a line); else ValueError.
 
         ``last_iterations`` and ``last_move`` report the iterations run and the last move.
         Positions beyond 1e50 rest diagonals of the rest mesh raise ValueError; a result that
@@ -129,7 +161,15 @@ class EdgeDeformer:
             raise ValueError("gravity: contains NaN or infinity")
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
         w = as_real(relaxation, "relaxation", 0.0, 1.0, lo_open=True)
-        return self._core.solve(x, its, t, ps, pb, g, x0, w)
+        rv = None
+        if rotation_vectors is not None:
+            rv = as_rotation_vectors(rotation_vectors, self._core.num_anchors)
+            if x0 is not None:
+                raise ValueError(
+                    "initial: must be None with rotation_vectors (the start is then the rest "
+                    "mesh carried by the vectors)"
+                )
+        return self._core.solve(x, its, t, ps, pb, g, x0, w, rv)
 
     @property
     def last_iterations(self) -> int:
@@ -171,6 +211,16 @@ class EdgeDeformer:
     def anisotropy(self) -> np.ndarray:
         """(E,) kappa in [0,1] per edge (all 1 without a direction field)."""
         return self._core.anisotropy
+
+    @property
+    def num_anchors(self) -> int:
+        """Anchors: the rows of ``solve``'s ``rotation_vectors``."""
+        return self._core.num_anchors
+
+    @property
+    def anchors(self) -> np.ndarray:
+        """(k,) int64 anchor id of each constrained vertex (``constrained`` order)."""
+        return np.asarray(self._core.anchors, dtype=np.int64)
 
     @property
     def num_vertices(self) -> int:

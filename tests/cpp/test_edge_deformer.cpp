@@ -289,6 +289,58 @@ TEST(EdgeDeformer, TwistedTubeTurnsItsMiddleByHalfTheTip) {
   }
 }
 
+// Given rotation vectors replace the fitted rotations in the first step: every anchor turned by
+// the same R (here a turn and a quarter about one axis) is reached in one carried step, also
+// when the vectors say "a whole turn more" than the positions show; the step depends on the
+// vectors only (no start to pass). A vector whose exp is not the anchor's fitted rotation, or
+// given with a start, throws and changes nothing. Caller anchors group the fit.
+TEST(EdgeDeformer, GivenRotationVectorsCarryWholeTurns) {
+  Vertices V;
+  Faces F;
+  tube(14, 10, 0.6, 4.0, &V, &F);
+  std::vector<int> c;
+  for (int k = 0; k < 10; ++k) c.push_back(k);
+  for (int k = 0; k < 10; ++k) c.push_back(static_cast<int>(V.rows()) - 1 - k);
+  const Eigen::Vector3d axis = Eigen::Vector3d(1, 2, 3).normalized();
+  const double angle = 2.5 * M_PI;
+  const Eigen::Matrix3d R = Eigen::AngleAxisd(angle, axis).toRotationMatrix();
+  const Vertices moved = V * R.transpose();
+  EdgeDeformer d(V, F, c);
+  ASSERT_EQ(d.num_anchors(), 2);
+  Vectors3 rv(2, 3);
+  rv.row(0) = angle * axis.transpose();
+  rv.row(1) = angle * axis.transpose();
+  Vertices X = d.solve(rows_of(moved, c), iterations(1), nullptr, &rv);
+  EXPECT_LT(max_diff(X, moved), 1e-11 * d.diagonal());
+  // the fitted step (a quarter turn) reaches the same rigid motion: a whole turn changes nothing
+  // for a rigid motion, and only the vectors' spread differs in between
+  EXPECT_LT(max_diff(d.solve(rows_of(moved, c), iterations(1)), moved), 1e-11 * d.diagonal());
+  // one end turned a whole turn more than the other: the first step is no longer rigid
+  Vectors3 twisted = rv;
+  twisted.row(1) += 2.0 * M_PI * axis.transpose();
+  const Vertices Y = d.solve(rows_of(moved, c), iterations(1), nullptr, &twisted);
+  EXPECT_GT(max_diff(Y, moved), 0.1);
+  const int its = d.last_iterations();
+  Vectors3 off = rv;
+  off(1, 0) += 1e-3;
+  EXPECT_THROW(d.solve(rows_of(moved, c), iterations(3), nullptr, &off), std::invalid_argument);
+  EXPECT_THROW(d.solve(rows_of(moved, c), iterations(3), &V, &rv), std::invalid_argument);
+  Vectors3 three = Vectors3::Zero(3, 3);
+  EXPECT_THROW(d.solve(rows_of(moved, c), iterations(3), nullptr, &three), std::invalid_argument);
+  EXPECT_EQ(d.last_iterations(), its);
+  EXPECT_EQ(max_diff(d.solve(rows_of(moved, c), iterations(1), nullptr, &twisted), Y), 0.0);
+  // both rings as one anchor: one vector
+  EdgeDeformerOptions o;
+  o.anchors.assign(c.size(), 0);
+  EdgeDeformer one(V, F, c, o);
+  ASSERT_EQ(one.num_anchors(), 1);
+  Vectors3 rv1 = rv.topRows(1);
+  EXPECT_LT(max_diff(one.solve(rows_of(moved, c), iterations(1), nullptr, &rv1), moved),
+            1e-11 * d.diagonal());
+  o.anchors.back() = static_cast<int>(c.size());  // out of range
+  EXPECT_THROW(EdgeDeformer(V, F, c, o), std::invalid_argument);
+}
+
 TEST(EdgeDeformer, IterationsComposeAndToleranceStops) {
   Vertices V;
   Faces F;

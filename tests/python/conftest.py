@@ -19,6 +19,16 @@ def affine(R, t=(0.0, 0.0, 0.0)):
     return T
 
 
+def ring_turns(v, x, n_around, n_along):
+    """(n_along+1,) turn of each ring of a ``shapes.tube`` about its axis (x), from positions,
+    unwrapped along the tube from the bottom ring, so whole turns show."""
+    rings = slice(0, (n_along + 1) * n_around)
+    rest = np.arctan2(v[rings, 2], v[rings, 1]).reshape(n_along + 1, n_around)
+    now = np.arctan2(x[rings, 2], x[rings, 1]).reshape(n_along + 1, n_around)
+    # circular mean of the ring's vertex turns
+    return np.unwrap(np.angle(np.exp(1j * (now - rest)).mean(axis=1)))
+
+
 @pytest.fixture
 def small_tube():
     """A short closed tube (~200 faces) with anchor faces at both ends."""

@@ -92,14 +92,19 @@ def iterate(
     edge_weight=None,
     direction=None,
     carry=False,
+    carry_vectors=None,
 ):
     """One E-M iteration from the iterate X (n,3): returns the new iterate (n,3). With carry
     (the solver's first iteration when the anchors turn), the rest parts of the targets are
     turned further by each edge's share of the anchors' rotations (X[constrained] ->
-    positions)."""
+    positions), or of ``carry_vectors`` (len(constrained),3): each constrained vertex's
+    rotation vector, given (the solver's rotation_vectors, one per anchor, spread to its
+    vertices)."""
     n = len(V)
     ts, _ = terms(V, F, stretch, bend, edge_weight, direction)
-    turn = carried_rotations(V, F, X, constrained, positions, ts) if carry else None
+    turn = None
+    if carry or carry_vectors is not None:
+        turn = carried_rotations(V, F, X, constrained, positions, ts, carry_vectors)
     A = np.zeros((n, n))
     B = np.zeros((n, 3))
 
@@ -150,10 +155,13 @@ def rotation_vector(R):
     return angle * w / (2 * np.sin(angle))
 
 
-def carried_rotations(V, F, X, constrained, positions, ts):
-    """Per term of `ts`, the 3x3 turn of the carried first step."""
+def carried_rotations(V, F, X, constrained, positions, ts, given=None):
+    """Per term of `ts`, the 3x3 turn of the carried first step (``given``: the constrained
+    vertices' rotation vectors instead of the fitted ones)."""
     n = len(V)
     c = np.asarray(constrained)
+    if given is not None:
+        return _spread(n, c, np.asarray(given, dtype=float), ts)
     # anchors: constrained vertices joined by mesh edges
     pairs = np.array([t["edge"] for t in ts])
     inside = np.isin(pairs, c).all(axis=1)
@@ -170,6 +178,10 @@ def carried_rotations(V, F, X, constrained, positions, ts):
             continue
         R = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ wt))]) @ wt
         r_c[k] = rotation_vector(R)
+    return _spread(n, c, r_c, ts)
+
+
+def _spread(n, c, r_c, ts):
     # spread by the system's own response: A_ff r_f = -A_fc r_c (the measure step's matrix)
     A = np.zeros((n, n))
     for t in ts:

@@ -9,8 +9,10 @@ changing them costs no rebind.
 
 Live updates run ``live_iterations`` iterations warm-started from the previous result and say
 ``done=False`` until the largest move is below tolerance, so the session keeps updating from a
-timer until the mesh has settled; Settle and Bake run to convergence (up to
-``settle_iterations``).
+timer until the mesh has settled; Settle, renders and Bake run to convergence (up to
+``settle_iterations``) from the frame's own start. Past half a turn the session's rotation
+vectors give that start its turns (``EdgeDeformer.solve(rotation_vectors=...)``), and live
+updates also start each new pose from it (docs/edge.md, "Twists past half a turn").
 """
 
 from __future__ import annotations
@@ -220,6 +222,7 @@ class Solver:
     rest: np.ndarray  # (n_c,3) rest positions of the compacted mesh
     constrained: np.ndarray  # (k,) compacted vertex indices, the order solve() expects
     owner: np.ndarray  # (k,) anchor of each constrained vertex
+    anchor_ids: np.ndarray  # (A,) the session anchor of each solver anchor
     diagonal: float
     n: int
     bend: float  # mu: the unit of the gravity strength
@@ -350,6 +353,9 @@ class EdgeMethod(Method):
             owner_full[np.unique(inputs.arrays.tris[inputs.anchor_faces[i]])] = i
         verts = np.flatnonzero(owner_full >= 0)
         constrained = inputs.compact_index(verts)
+        # the solver's anchors are the Empties' (numbered by first appearance), so that each
+        # fits one rotation and takes its Empty's turns
+        ids, anchor_of = np.unique(owner_full[verts], return_inverse=True)
         d = inputs.extra.get("direction")
         if d is not None and inputs.used is not None:
             d = d[inputs.used]
@@ -366,22 +372,42 @@ class EdgeMethod(Method):
                 bend=s["bend"],
                 edge_weight=w,
                 direction=d,
+                anchors=anchor_of,
             )
         except (ValueError, RuntimeError) as exc:
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
-        return Solver(dfm, rest, constrained, owner_full[verts], dfm.diagonal, len(rest), s["bend"])
+        return Solver(
+            dfm, rest, constrained, owner_full[verts], ids, dfm.diagonal, len(rest), s["bend"]
+        )
 
     def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
-        # rotations: ignored for now (the anchor vertices sit alike at 180 and 540 degrees; the
-        # turns are to give the iteration its start)
         p = state.get("params") or _default_params()
         t = np.asarray(transforms, dtype=np.float64)
         r = solver.rest[solver.constrained]
         m = t[solver.owner]
         pos = np.einsum("kij,kj->ki", m[:, :3, :3], r) + m[:, :3, 3]
+        # the pose: anchor matrices, turns and the live settings
+        key = t.tobytes() + repr(sorted((k, np.asarray(v).tolist()) for k, v in p.items())).encode()
+        if rotations is not None:
+            key += np.asarray(rotations, dtype=np.float64).tobytes()
+        # The start. Settle, renders and bakes (budget None), and every update past half a turn
+        # (rotations given), start from the frame alone: the rest mesh, its first step carrying
+        # the anchors' turns (docs/edge.md, "Twists past half a turn"); positions alone cannot
+        # tell 180 from 540 degrees, and a start from the previous frame would make the result
+        # depend on the order frames were evaluated in. Live updates past half a turn continue
+        # only this very pose's own iteration (iterations compose bit for bit); below half a
+        # turn they warm-start from the last result, whatever pose it was.
+        seeded = state.pop("seeded", False)
         x0 = state.get("x")
         if x0 is not None and x0.shape != solver.rest.shape:
             x0 = None
+        own = state.get("chain") == key or seeded
+        rv = None
+        if budget is None or rotations is not None:
+            if not (budget is not None and own):
+                x0 = None
+                if rotations is not None:
+                    rv = anchor_vectors(solver, pos, rotations)
         its = p["settle_iterations"] if budget is None else int(budget)
         g = p["gravity"] * (GRAVITY_UNIT * solver.bend * solver.diagonal / solver.n)
         d = solver.deformer
@@ -394,11 +420,13 @@ class EdgeMethod(Method):
             gravity=g,
             initial=x0,
             relaxation=p["relaxation"],
+            rotation_vectors=rv,
         )
         state["x"] = x
+        # the pose whose frame-only iteration x continues (None: x came from a warm start)
+        state["chain"] = key if (x0 is None or own) else None
         # live iterations spent on this very pose and these settings: a pose that never meets
         # the tolerance (a two-cycle, docs/edge.md) stops the settling timer at Settle Max
-        key = t.tobytes() + repr(sorted((k, np.asarray(v).tolist()) for k, v in p.items())).encode()
         spent = (state.get("spent", 0) if state.get("pose_key") == key else 0) + d.last_iterations
         state["pose_key"], state["spent"] = key, spent
         converged = d.last_move < p["tol"] or p["tol"] == 0.0
@@ -412,7 +440,10 @@ class EdgeMethod(Method):
         )
 
     def seed(self, solver, state, positions) -> None:
+        # the output key's unsettled result of the pose about to be solved (the session checks
+        # its record): the next live update continues it
         state["x"] = np.array(positions, dtype=np.float64)
+        state["seeded"] = True
 
     def watched_objects(self, obj) -> tuple:
         s = edge_settings(obj)
@@ -457,6 +488,32 @@ class EdgeMethod(Method):
         elif s.direction_source == "EMPTY":
             layout.prop(s, "direction_empty")
             layout.prop(s, "direction_axis", expand=True)
+
+
+def anchor_vectors(solver: Solver, pos: np.ndarray, rotations) -> np.ndarray:
+    """(A,3) the solver anchors' rotation vectors: each Empty's vector (the session's branch),
+    moved onto the rotation the solver fits to its vertices (rest -> ``pos``). They differ only
+    when an Empty is scaled unevenly (the fit is then not the polar factor's rotation)."""
+    v = np.asarray(rotations, dtype=np.float64)[solver.anchor_ids]
+    rest = solver.rest[solver.constrained]
+    fits, rows = [], []
+    for a in range(len(v)):
+        sel = solver.owner == solver.anchor_ids[a]
+        x, y = rest[sel], pos[sel]
+        if len(x) < 3:
+            continue
+        xc, yc = x - x.mean(0), y - y.mean(0)
+        sx = np.linalg.svd(xc, compute_uv=False)
+        if sx[1] <= 1e-9 * sx[0]:  # in a line: the solver fits nothing there
+            continue
+        u, _s, vt = np.linalg.svd(yc.T @ xc)
+        fit = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt))]) @ vt
+        fits.append(fit)
+        rows.append(a)
+    if rows:
+        near = load_core().unwrap_rotations(np.stack(fits)[None], start=v[rows])[0]
+        v[rows] = near
+    return v
 
 
 def _default_params() -> dict:

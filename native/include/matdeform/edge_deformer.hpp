@@ -17,6 +17,10 @@ struct EdgeDeformerOptions {
   Eigen::VectorXd edge_weight;
   // (n,3) direction field f for the anisotropy kappa (Eq. 13-14); empty: isotropic.
   Vertices direction;
+  // (k,) anchor id >= 0 of each constrained vertex (constructor order): the groups the first
+  // step fits a rotation to and the rows of solve()'s rotation_vectors (ids need not all be
+  // used). Empty: the constrained vertices joined by mesh edges, numbered by first appearance.
+  std::vector<int> anchors;
 };
 
 struct EdgeSolveOptions {
@@ -37,7 +41,8 @@ struct EdgeSolveOptions {
 // edge's rest -> current frame), so every iteration solves the same sparse SPD system. When an
 // anchor (constrained vertices joined by edges) turns by more than 15 degrees from the start,
 // the first iteration also turns those targets by the anchors' fitted rotations, spread over
-// the mesh by the same system (docs/edge.md, "The first step when anchors turn").
+// the mesh by the same system (docs/edge.md, "The first step when anchors turn"); given
+// rotation vectors replace the fitted rotations (docs/edge.md, "Twists past half a turn").
 //
 // Defined behaviour:
 //  - boundary edges, non-manifold edges (3+ faces), edges whose two faces have the same third
@@ -59,8 +64,14 @@ class EdgeDeformer {
 
   // constrained_positions (|constrained|,3) in the constructor's order; initial: (n,3) warm
   // start or nullptr (rest). Returns the last iterate (n,3). Concurrent calls take turns.
+  // rotation_vectors: (num_anchors,3) axis * angle (radians, any length) of each anchor's turn
+  // from rest, or nullptr. With them the start is the rest mesh (initial must be nullptr) and
+  // the first step carries these vectors instead of the fitted rotations, so turns past half a
+  // turn survive and the result depends on the arguments only. Row a must be a log of the
+  // rotation fitted to anchor a (rest -> constrained_positions) within
+  // kRotationVectorTolerance wherever that fit exists (3+ points not in a line).
   Vertices solve(const Vertices& constrained_positions, const EdgeSolveOptions& options,
-                 const Vertices* initial = nullptr);
+                 const Vertices* initial = nullptr, const Vectors3* rotation_vectors = nullptr);
 
   int last_iterations() const { return last_iterations_; }
   double last_move() const { return last_move_; }  // largest move of the last iteration / diag
@@ -77,9 +88,13 @@ class EdgeDeformer {
   const Eigen::VectorXd& anisotropy() const { return kappa_; }  // (E,) kappa in [0,1]
   int num_vertices() const { return n_; }
   int num_free() const;
+  int num_anchors() const;
+  const std::vector<int>& anchors() const;  // (k,) anchor id of each constrained vertex
   double diagonal() const { return diag_; }
 
  private:
+  void check_rotation_vectors(const Vertices& constrained_positions, const Vertices* initial,
+                              const Vectors3& v) const;
   struct Impl;
   std::unique_ptr<Impl> impl_;
   int n_ = 0;
