@@ -510,12 +510,23 @@ def build_pyramid():
 
 # --- turns past half a turn -------------------------------------------------------------------
 
+
 # Methods shown beside Laplacian Deform: those that carry an anchor's turns past half a turn
 # (Edge-based, Pyramid and Pose space join once their solves start from the unwrapped turns).
-TWIST_METHODS = (("MATERIAL", "Material-aware"),)
+def _edge_twist_settings(obj):
+    # the edge method keeps a twist only where the material resists unwinding (docs/edge.md,
+    # twists past half a turn): a stiff stretch
+    obj.material_deform.edge.stretch = 1.0
+
+
+# (method, column label, settings applied before Bind)
+TWIST_METHODS = (
+    ("MATERIAL", "Material-aware", None),
+    ("EDGE", "Edge-based", _edge_twist_settings),
+)
 TWIST_DEGREES, TWIST_FRAME = 540, 19  # keyed from 0 at frame 1, linearly: 30 degrees a frame
-TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.5, 61, 24
-TWIST_SPACING = 2.6  # between the columns' axes
+TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.3, 61, 24
+TWIST_SPACING = 1.8  # between the columns' axes
 
 
 def striped_tube(name, x):
@@ -581,14 +592,16 @@ def build_twist():
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
     scene = bpy.context.scene
     scene.frame_set(1)
-    columns = [("Laplacian Deform", None)] + [(label_, key) for key, label_ in TWIST_METHODS]
-    for i, (text, method) in enumerate(columns):
+    columns = [("Laplacian Deform", None, None)] + [(t, k, f) for k, t, f in TWIST_METHODS]
+    for i, (text, method, setup) in enumerate(columns):
         x = TWIST_SPACING * i
         if method is None:
             laplacian_twist(x)
         else:
             obj = striped_tube(text, x)
             obj.material_deform.method = method
+            if setup is not None:
+                setup(obj)
             add_anchor(obj, lambda p: p.center.z < 1e-4)
             top = add_anchor(obj, lambda p: p.center.z > TWIST_LENGTH - 1e-4)
             top.empty.rotation_euler = (0.0, 0.0, 0.0)  # upright: Z along the tube's axis
