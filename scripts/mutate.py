@@ -394,6 +394,27 @@ MUTATIONS = [
         "",
         "convex pose weights are not clipped at zero",
     ),
+    M(
+        "S7",
+        "native/src/pose_space_rotations.cpp",
+        "(*face_turns)[f] - phi_[f]",
+        "(*face_turns)[f]",
+        "turns: a handle face's residual keeps its start's branch after the steps taken",
+    ),
+    M(
+        "S8",
+        "native/src/pose_space_rotations.cpp",
+        "const bool pair_branch = pair_turns && G;",
+        "const bool pair_branch = false;",
+        "turns: the joints' rotation vectors are ignored (principal logs)",
+    ),
+    M(
+        "S9",
+        "native/src/pose_space_deformer.cpp",
+        "    if (err <= tolerance) return;\n",
+        "    if (err <= 10 * tolerance) return;\n",
+        "turns: rotation vectors 10x farther from their rotation are accepted",
+    ),
     # Turns past half a turn: rotation vectors and their unwrapping.
     M(
         "TW1",

@@ -149,7 +149,8 @@ void PoseSpaceDeformer::Impl::check_reach(const Vertices& X, const std::string& 
 
 void PoseSpaceDeformer::Impl::check_inputs(const std::vector<Vertices>& hp,
                                            const Matrix3Array* rotations,
-                                           const Eigen::Matrix4d* frame_transform) const {
+                                           const Eigen::Matrix4d* frame_transform,
+                                           const Vectors3* rotation_vectors) const {
   if (static_cast<int>(hp.size()) != h) {
     fail("handle_positions: expected " + std::to_string(h) + " arrays, got " +
          std::to_string(hp.size()));
@@ -195,6 +196,51 @@ void PoseSpaceDeformer::Impl::check_inputs(const std::vector<Vertices>& hp,
     fail(
         "frame_transform: required, because the vertices of the frame face are not all handle "
         "vertices");
+  }
+  if (rotation_vectors) check_rotation_vectors(hp, rotations, *rotation_vectors);
+}
+
+// Each row a log of its anchor's rotation: the handle's fitted one (where defined) or the joint's.
+void PoseSpaceDeformer::Impl::check_rotation_vectors(const std::vector<Vertices>& hp,
+                                                     const Matrix3Array* rotations,
+                                                     const Vectors3& v) const {
+  if (v.rows() != h + r) {
+    fail("rotation_vectors: expected shape (" + std::to_string(h + r) + ",3), one per handle (" +
+         std::to_string(h) + ") then one per rotational pair (" + std::to_string(r) + "), got " +
+         std::to_string(v.rows()) + " rows");
+  }
+  auto check = [&](int row, const Mat3& R, double tolerance, const std::string& what) {
+    const Vec3 vr = v.row(row).transpose();
+    const std::string name = item("rotation_vectors", row);
+    if (!vr.allFinite()) fail(name + ": contains NaN or infinity");
+    const double err = rotation_vector_mismatch(vr, R);
+    if (err <= tolerance) return;
+    std::ostringstream msg;
+    msg << name << ": its exp differs from " << what << " by " << err << " rad (tolerance "
+        << tolerance
+        << "); expected a log of that rotation, i.e. its principal log plus whole turns about "
+           "the same axis";
+    if (std::isnan(err)) msg << " (this vector, " << vr.norm() << " rad, is too long)";
+    fail(msg.str());
+  };
+  for (int j = 0; j < h; ++j) {
+    const int b = handle_offset[j], e = handle_offset[j + 1];
+    const Vertices rest_j = handle_rest.middleRows(b, e - b);
+    if (e - b < 3 || !(planarity(rest_j) > 1e-6) || !(planarity(hp[j]) > 1e-6)) {
+      // no rotation to compare with (and none for step 1 to take): the row must be finite
+      if (!v.row(j).allFinite()) fail(item("rotation_vectors", j) + ": contains NaN or infinity");
+      continue;
+    }
+    check(j, best_rotation(rest_j, hp[j]), kHandleVectorTolerance,
+          "the rotation of handle " + std::to_string(j) + " (its best rigid fit, rest -> " +
+              item("handle_positions", static_cast<size_t>(j)) + ")");
+  }
+  for (int q = 0; q < r; ++q) {
+    if (rotations) {
+      check(h + q, (*rotations)[q], kRotationVectorTolerance, item("rotations", q));
+    } else if (!v.row(h + q).allFinite()) {  // joints free: the row is not used
+      fail(item("rotation_vectors", h + q) + ": contains NaN or infinity");
+    }
   }
 }
 
@@ -722,7 +768,8 @@ PoseSpaceDeformer::~PoseSpaceDeformer() = default;
 
 Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
                                       const Matrix3Array* rotations,
-                                      const Eigen::Matrix4d* frame_transform) const {
+                                      const Eigen::Matrix4d* frame_transform,
+                                      const Vectors3* rotation_vectors) const {
   const ParkWorkersOnExit park;
   stats = PoseSpaceStats();
   auto t0 = Clock::now();
@@ -745,8 +792,18 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   // Step 1 and 2 without handles: the natural blended shape, up to a rigid motion.
   t0 = Clock::now();
   Matrix3Array R0;
-  stats.iterations_first =
-      solve_rotations(*rot_a, Q, G, Matrix3Array(), nullptr, rot_b == nullptr, &R0);
+  // Turns past half a turn: the geodesic energy from the start, residuals on the vectors'
+  // branches (joints here; the handles in the solve with the handle rotations below).
+  std::vector<Vec3> pair_turns;
+  if (rotation_vectors) {
+    for (int q = 0; q < r; ++q) pair_turns.push_back(rotation_vectors->row(h + q).transpose());
+    stats.iterations_first =
+        rot_a->solve_log(Q, G, Matrix3Array(), nullptr,
+                         rot_b ? opt.gauge_steps : opt.rotation_iterations, &R0, &pair_turns);
+  } else {
+    stats.iterations_first =
+        solve_rotations(*rot_a, Q, G, Matrix3Array(), nullptr, rot_b == nullptr, &R0);
+  }
   stats.ms_rotations += ms_since(t0);
   t0 = Clock::now();
   Matrix3Array T(lm);
@@ -812,7 +869,28 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
       const int f = lhandle_faces[s];
       Z[f] = Gj[lhandle_owner[s]] * R0[f];
     }
-    stats.iterations_second = solve_rotations(*rot_b, Q, G, Z, &init, true, &R);
+    if (rotation_vectors) {
+      // From the natural shape (which carries the joints' turns) a face of handle j is off its
+      // target by G_j exactly; its log with the handle's turns: the branch nearest the handle's
+      // vector less the natural shape's own turn of the handle (principal: the examples' blend
+      // turns a handle by less than half a turn). The first Gauss-Newton step spreads these
+      // turns over the faces between the handles, as the material-aware blend spreads an
+      // anchor's; the later steps correct.
+      std::vector<Vec3> turn(h), face_turns(lm, Vec3::Zero());
+      for (int j = 0; j < h; ++j) {
+        const int b = handle_offset[j], e = handle_offset[j + 1];
+        const Vec3 natural =
+            rotation_log(best_rotation(handle_rest.middleRows(b, e - b), x0.middleRows(b, e - b)));
+        turn[j] = rotation_log_near(Gj[j], rotation_vectors->row(j).transpose() - natural);
+      }
+      for (size_t s = 0; s < lhandle_faces.size(); ++s) {
+        face_turns[lhandle_faces[s]] = turn[lhandle_owner[s]];
+      }
+      stats.iterations_second =
+          rot_b->solve_log(Q, G, Z, &R0, opt.rotation_iterations, &R, nullptr, &face_turns);
+    } else {
+      stats.iterations_second = solve_rotations(*rot_b, Q, G, Z, &init, true, &R);
+    }
   }
   for (int i = 0; i < lm; ++i) {
     if (lface_follow[i]) R[i] = Gpart[lface_part[i]] * R0[i];
@@ -884,12 +962,13 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
 
 Vertices PoseSpaceDeformer::deform(const std::vector<Vertices>& handle_positions,
                                    const Matrix3Array* rotations,
-                                   const Eigen::Matrix4d* frame_transform) const {
-  impl_->check_inputs(handle_positions, rotations, frame_transform);
+                                   const Eigen::Matrix4d* frame_transform,
+                                   const Vectors3* rotation_vectors) const {
+  impl_->check_inputs(handle_positions, rotations, frame_transform, rotation_vectors);
   const std::lock_guard<std::mutex> lock(impl_->busy);
   const PoseSpaceStats kept = impl_->stats;
   try {
-    return impl_->run(handle_positions, rotations, frame_transform);
+    return impl_->run(handle_positions, rotations, frame_transform, rotation_vectors);
   } catch (...) {
     impl_->stats = kept;  // a refused call changes nothing
     throw;

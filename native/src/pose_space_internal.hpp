@@ -128,8 +128,18 @@ class RotationSolver {
   // preconditioner matrix itself) with three right-hand sides. P starts as the tree gauge (or
   // init) and is updated by exp(xi) until max |xi| < 1e-10 or max_iterations solves. Exact in
   // one solve when the relative rotations are consistent. Returns the number of solves.
+  //
+  // Turns past half a turn (the energy has a local minimum per number of turns; the matrices
+  // alone pick the principal logs): pair_turns, one rotation vector per rotational pair, a log
+  // of any length of G (used when G is given), takes each pair's residual on the branch that
+  // turns face b against face a by that vector, the start's own relative rotation of the pair
+  // counted on its principal branch; face_turns, indexed by face, the residual log(Z_f P_f^T)
+  // of each penalty face at the start, of any length. Later steps take the log nearest to what
+  // is left of it. nullptr: principal logs.
   int solve_log(const Matrix3Array& Q, const Matrix3Array* G, const Matrix3Array& Z,
-                const Matrix3Array* init, int max_iterations, Matrix3Array* R) const;
+                const Matrix3Array* init, int max_iterations, Matrix3Array* R,
+                const std::vector<Vec3>* pair_turns = nullptr,
+                const std::vector<Vec3>* face_turns = nullptr) const;
 
   // Chordal energy (the paper's linear step 1). Q: one relative rotation per dual edge; G: one
   // per rotational pair, or nullptr (pairs inactive); Z: targets of the penalty faces (indexed
@@ -155,6 +165,7 @@ class RotationSolver {
   // Per-call workspace.
   mutable Matrix3Array P_, D_, B_, X_;
   mutable std::vector<Vec3> d_;
+  mutable std::vector<Vec3> phi_, pair_expect_;  // solve_log with turns: steps taken, start
   mutable std::vector<char> active_;
   mutable std::vector<double> buf_in_, buf_out_;
 };
@@ -298,7 +309,10 @@ struct PoseSpaceDeformer::Impl {
   // Throws for the first row of X beyond reach, naming `what`.
   void check_reach(const Vertices& X, const std::string& what) const;
   void check_inputs(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
-                    const Eigen::Matrix4d* frame_transform) const;
+                    const Eigen::Matrix4d* frame_transform,
+                    const Vectors3* rotation_vectors = nullptr) const;
+  void check_rotation_vectors(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
+                              const Vectors3& v) const;
   Vertices concat_targets(const std::vector<Vertices>& hp) const;
 
   // ---- encoding (pose_space_encoding.cpp)
@@ -345,7 +359,7 @@ struct PoseSpaceDeformer::Impl {
 
   // ---- the pipeline (pose_space_deformer.cpp)
   Vertices run(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
-               const Eigen::Matrix4d* frame_transform) const;
+               const Eigen::Matrix4d* frame_transform, const Vectors3* rotation_vectors) const;
 };
 
 }  // namespace matdeform

@@ -164,7 +164,9 @@ RotationSolver::RotationSolver(int m, const IndexPairs& dual,
 }
 
 int RotationSolver::solve_log(const Matrix3Array& Q, const Matrix3Array* G, const Matrix3Array& Z,
-                              const Matrix3Array* init, int max_iterations, Matrix3Array* R) const {
+                              const Matrix3Array* init, int max_iterations, Matrix3Array* R,
+                              const std::vector<Vec3>* pair_turns,
+                              const std::vector<Vec3>* face_turns) const {
   const int E = num_dual_, L = static_cast<int>(la_.size());
   const int u = static_cast<int>(faces_.size());
   Matrix3Array& P = *R;
@@ -183,13 +185,34 @@ int RotationSolver::solve_log(const Matrix3Array& Q, const Matrix3Array* G, cons
   d_.resize(L);
   buf_in_.resize(static_cast<size_t>(3) * u);
   buf_out_.resize(buf_in_.size());
+  // Turns: each branched residual is the log of its rotation nearest to what is left of the
+  // residual expected at the start (expected minus the steps taken since: phi, per face).
+  const bool pair_branch = pair_turns && G;
+  const bool track = pair_branch || face_turns;
+  if (track) phi_.assign(m_, Vec3::Zero());
+  if (pair_branch) {
+    // At the start face b is turned against face a by C = P_a^T P_b (taken on its principal
+    // branch); the link asks for G, so its residual P_a G P_b^T = P_a (G C^T) P_a^T has the log
+    // P_a log(G C^T), on the branch of g - log(C).
+    pair_expect_.resize(L - E);
+    for (int l = E; l < L; ++l) {
+      const Mat3 C = P[la_[l]].transpose() * P[lb_[l]];
+      const Vec3 near = (*pair_turns)[l - E] - rotation_log(C);
+      pair_expect_[l - E] = P[la_[l]] * rotation_log_near((*G)[l - E] * C.transpose(), near);
+    }
+  }
   int it = 0;
   while (it < max_iterations) {
     run(L, [&](int b, int e) {
       for (int l = b; l < e; ++l) {
         if (!active_[l]) continue;
         const Mat3& q = l < E ? Q[l] : (*G)[l - E];
-        d_[l] = small_log(P[la_[l]] * q * P[lb_[l]].transpose());
+        if (pair_branch && l >= E) {
+          d_[l] = rotation_log_near(P[la_[l]] * q * P[lb_[l]].transpose(),
+                                    pair_expect_[l - E] - (phi_[lb_[l]] - phi_[la_[l]]));
+        } else {
+          d_[l] = small_log(P[la_[l]] * q * P[lb_[l]].transpose());
+        }
       }
     });
     run(u, [&](int b, int e) {
@@ -201,7 +224,11 @@ int RotationSolver::solve_log(const Matrix3Array& Q, const Matrix3Array* G, cons
           if (!active_[l]) continue;
           acc += (adj_[k] & 1 ? lw_[l] : -lw_[l]) * d_[l];  // + for b, - for a
         }
-        if (penalty_[f] > 0.0) acc += penalty_[f] * rotation_log(Z[f] * P[f].transpose());
+        if (penalty_[f] > 0.0) {
+          const Mat3 res = Z[f] * P[f].transpose();
+          acc += penalty_[f] * (face_turns ? rotation_log_near(res, (*face_turns)[f] - phi_[f])
+                                           : rotation_log(res));
+        }
         for (int c = 0; c < 3; ++c) buf_in_[static_cast<size_t>(c) * u + i] = acc(c);
       }
     });
@@ -213,6 +240,7 @@ int RotationSolver::solve_log(const Matrix3Array& Q, const Matrix3Array* G, cons
                     buf_out_[static_cast<size_t>(2) * u + i]);
       change = std::max(change, xi.norm());
       P[faces_[i]] = rotation_exp(xi) * P[faces_[i]];
+      if (track) phi_[faces_[i]] += xi;
     }
     if (change < 1e-10) break;
   }
