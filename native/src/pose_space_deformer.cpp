@@ -870,24 +870,41 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
       Z[f] = Gj[lhandle_owner[s]] * R0[f];
     }
     if (rotation_vectors) {
-      // From the natural shape (which carries the joints' turns) a face of handle j is off its
-      // target by G_j exactly; its log with the handle's turns: the branch nearest the handle's
-      // vector less the natural shape's own turn of the handle (principal: the examples' blend
-      // turns a handle by less than half a turn). The first Gauss-Newton step spreads these
-      // turns over the faces between the handles, as the material-aware blend spreads an
-      // anchor's; the later steps correct.
-      std::vector<Vec3> turn(h), face_turns(lm, Vec3::Zero());
+      // From the natural shape a face of handle j is off its target by G_j exactly; its log
+      // with the handle's turns: the branch nearest the handle's vector less the natural
+      // shape's own turn of the handle (principal: the examples' blend turns a handle by less
+      // than half a turn).
+      std::vector<Vec3> turn(h);
       for (int j = 0; j < h; ++j) {
         const int b = handle_offset[j], e = handle_offset[j + 1];
         const Vec3 natural =
             rotation_log(best_rotation(handle_rest.middleRows(b, e - b), x0.middleRows(b, e - b)));
         turn[j] = rotation_log_near(Gj[j], rotation_vectors->row(j).transpose() - natural);
       }
+      // The start: the natural shape turned, per part, by the rotation G_j of its first handle
+      // with faces (the rigid fit of all handle vertices, today's start, is undefined at half a
+      // turn; the natural shape itself, whose root face is held at rest, leaves every handle
+      // off by a common tilt, which slowed the steps and let a twist past a whole turn drift).
+      // The steps begin from the handles' differences: the first spreads them (and their turns)
+      // over the faces between the handles, as the material-aware blend spreads an anchor's
+      // turn, and the others correct.
+      std::vector<int> ref(parts, -1);
+      for (const int j : lhandle_owner) {
+        const int c = vpart[handle_all[handle_offset[j]]];
+        if (!part_frozen[c] && (ref[c] < 0 || j < ref[c])) ref[c] = j;
+      }
+      Matrix3Array start(lm);
+      for (int i = 0; i < lm; ++i) {
+        const int c = lface_part[i];
+        start[i] = ref[c] < 0 ? R0[i] : Mat3(Gj[ref[c]] * R0[i]);
+      }
+      std::vector<Vec3> face_turns(lm, Vec3::Zero());
       for (size_t s = 0; s < lhandle_faces.size(); ++s) {
-        face_turns[lhandle_faces[s]] = turn[lhandle_owner[s]];
+        const int j = lhandle_owner[s], c = vpart[handle_all[handle_offset[j]]];
+        face_turns[lhandle_faces[s]] = ref[c] < 0 ? turn[j] : Vec3(turn[j] - turn[ref[c]]);
       }
       stats.iterations_second =
-          rot_b->solve_log(Q, G, Z, &R0, opt.rotation_iterations, &R, nullptr, &face_turns);
+          rot_b->solve_log(Q, G, Z, &start, opt.rotation_iterations, &R, nullptr, &face_turns);
     } else {
       stats.iterations_second = solve_rotations(*rot_b, Q, G, Z, &init, true, &R);
     }
