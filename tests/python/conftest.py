@@ -12,6 +12,16 @@ def rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * K @ K
 
 
+def ring_angles(v, X, n_around, n_along):
+    """(n_along+1,) turn of each ring of an md.shapes.tube about its axis (x), from the rest
+    positions v and the deformed X, unwrapped along the tube from the first ring, so any whole
+    number of turns shows. Each ring's turn is the circular mean of its vertices' turns."""
+    rings = slice(0, (n_along + 1) * n_around)
+    rest = np.arctan2(v[rings, 2], v[rings, 1]).reshape(n_along + 1, n_around)
+    now = np.arctan2(X[rings, 2], X[rings, 1]).reshape(n_along + 1, n_around)
+    return np.unwrap(np.angle(np.exp(1j * (now - rest)).mean(axis=1)))
+
+
 def affine(R, t=(0.0, 0.0, 0.0)):
     T = np.eye(4)
     T[:3, :3] = R

@@ -9,6 +9,7 @@ unwrapped along the tube from the fixed bottom ring, so any whole number of turn
 import numpy as np
 import pytest
 from conftest import affine, rotation
+from conftest import ring_angles as tube_ring_angles
 
 import matdeform as md
 from matdeform import shapes
@@ -36,12 +37,7 @@ def twist_vectors(theta):
 
 def ring_angles(v, X):
     """(N_ALONG+1,) turn of each ring about x, from positions, unwrapped along the tube."""
-    rings = slice(0, (N_ALONG + 1) * N_AROUND)
-    rest = np.arctan2(v[rings, 2], v[rings, 1]).reshape(N_ALONG + 1, N_AROUND)
-    now = np.arctan2(X[rings, 2], X[rings, 1]).reshape(N_ALONG + 1, N_AROUND)
-    # Circular mean of the ring's vertex turns (they agree to ~1e-3 rad).
-    turn = np.angle(np.exp(1j * (now - rest)).mean(axis=1))
-    return np.unwrap(turn)
+    return tube_ring_angles(v, X, N_AROUND, N_ALONG)
 
 
 @pytest.mark.parametrize("degrees", [0, 90, 180, 210, 360, 540, 720])
