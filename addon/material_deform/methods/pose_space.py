@@ -13,6 +13,8 @@ Its own inputs (docs/pose_space.md, "In Blender"):
   or twists the joint between them (the anchor's vertices are not held in place).
 - Settings: multiresolution (coarse face count) and the frozen faces (a vertex group, or a
   boolean face attribute / face map of that name).
+- Turns: the anchors' rotation vectors go to ``deform(rotation_vectors=...)`` on every update
+  (docs/pose_space.md, "Twists past half a turn").
 
 The example set and every example's coordinates are in the fingerprint, and the live update
 compares them with the bound ones bit for bit, so editing a key makes the bind stale.
