@@ -20,6 +20,7 @@ std::optional<Matrix3Array> to_rotations(const std::optional<py_convert::DoubleA
 }  // namespace
 
 void bind_pose_space_deformer(py::module_& m) {
+  m.attr("HANDLE_VECTOR_TOLERANCE") = kHandleVectorTolerance;
   py::class_<PoseSpaceDeformer>(m, "PoseSpaceDeformer")
       .def(py::init([](const Vertices& vertices, const Faces& faces,
                        const std::vector<Vertices>& examples,
@@ -69,14 +70,16 @@ void bind_pose_space_deformer(py::module_& m) {
           "deform",
           [](const PoseSpaceDeformer& self, const std::vector<Vertices>& handle_positions,
              const std::optional<py_convert::DoubleArray>& rotations,
-             const std::optional<Eigen::Matrix4d>& frame_transform) {
+             const std::optional<Eigen::Matrix4d>& frame_transform,
+             const std::optional<Vectors3>& rotation_vectors) {
             const std::optional<Matrix3Array> rot = to_rotations(rotations);
             py::gil_scoped_release release;
             return self.deform(handle_positions, rot ? &*rot : nullptr,
-                               frame_transform ? &*frame_transform : nullptr);
+                               frame_transform ? &*frame_transform : nullptr,
+                               rotation_vectors ? &*rotation_vectors : nullptr);
           },
           py::arg("handle_positions"), py::arg("rotations") = py::none(),
-          py::arg("frame_transform") = py::none())
+          py::arg("frame_transform") = py::none(), py::arg("rotation_vectors") = py::none())
       .def(
           "pose_weights",
           [](const PoseSpaceDeformer& self, const std::vector<Vertices>& handle_positions,

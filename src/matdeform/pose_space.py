@@ -17,6 +17,7 @@ from ._validate import (
     as_int_array,
     as_mesh_vertices,
     as_real,
+    as_rotation_vectors,
     as_vertices,
 )
 
@@ -80,6 +81,11 @@ class PoseSpaceDeformer:
         it in some example weigh 1/2 in step 1, w = 1/(1 + (angle/reliability_angle)^2)
         (default 0.5); inf weighs all edges 1.
     """
+
+    # Largest angle (rad) by which exp of a handle's rotation vector may differ from the handle's
+    # fitted rotation (deform(rotation_vectors=...)): a scaled or sheared anchor moves the fit
+    # off its rotation, and the vector only picks the whole turns.
+    HANDLE_VECTOR_TOLERANCE: float = _core.HANDLE_VECTOR_TOLERANCE
 
     def __init__(
         self,
@@ -180,7 +186,9 @@ class PoseSpaceDeformer:
             tol,
         )
 
-    def deform(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:
+    def deform(
+        self, handle_positions, rotations=None, frame_transform=None, *, rotation_vectors=None
+    ) -> np.ndarray:
         """Deformed positions (n,3) float64.
 
         handle_positions : list of h arrays, array j of shape (len(handles[j]),3): world
@@ -189,9 +197,22 @@ class PoseSpaceDeformer:
             joints free (the pose is then inferred from the handle positions alone).
         frame_transform : (4,4) rigid transform taking the rest frame face to its place, or
             None (then the frame is measured from the handle positions). Only with ``frame``.
+        rotation_vectors : (h + r,3) axis * angle (radians, any length), or None: the turns
+            past half a turn that positions and matrices cannot show (see ``unwrap_rotations``).
+            Row j < h: a log of handle j's rotation (the best rigid fit of its rest vertices to
+            ``handle_positions[j]``), exp within ``HANDLE_VECTOR_TOLERANCE`` (pi/4:
+            it only picks the whole turns) where that rotation is defined (three non-collinear
+            vertices). Row h + q: a log of ``rotations[q]``, exp within
+            ``ROTATION_VECTOR_TOLERANCE`` (not used when ``rotations`` is None). Given, step 1
+            minimises the geodesic energy from the natural shape with the handles' and joints'
+            residuals on these branches, so a handle turned by 540 degrees twists the mesh by
+            540; None keeps the energy of the options and the principal logs (angle <= pi).
         """
         args = self._deform_args(handle_positions, rotations, frame_transform)
-        return self._core.deform(*args)
+        if rotation_vectors is None:
+            return self._core.deform(*args)
+        rv = as_rotation_vectors(rotation_vectors, len(self._sizes) + self._r)
+        return self._core.deform(*args, rv)
 
     def pose_weights(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:
         """The example weights (p,) ``deform()`` would use for these inputs (cheap: no solve)."""

@@ -105,11 +105,13 @@ def reference(obj, anchors, coarse=None, frozen=None, rest_example=True, frame_a
     d = md.PoseSpaceDeformer(
         v, tris, np.stack(ex), handles, frame=frame, coarse=coarse, frozen=frozen
     )
-    hp = []
+    hp, turns = [], []
     for a, h in zip(anchors, handles, strict=True):
         t = transform_of(obj, a)
         hp.append(v[h] @ t[:3, :3].T + t[:3, 3])
-    x = d.deform(hp)
+        turns.append(t[:3, :3])
+    # the add-on hands the anchors' turns on always: here the principal logs (all within pi)
+    x = d.deform(hp, rotation_vectors=md.unwrap_rotations(np.stack(turns)[None])[0])
     return x, d.example_weights
 
 
@@ -395,7 +397,9 @@ def test_rotation_anchor_turns_the_joint_like_the_library():
         u, _s, vt = np.linalg.svd(t[:3, :3])
         return u @ vt
 
-    want = d.deform(hp, rotations=rot(ts[1]).T @ rot(ts[2])[None])
+    joint = rot(ts[1]).T @ rot(ts[2])
+    turns = md.unwrap_rotations(np.stack([ts[0][:3, :3], ts[1][:3, :3], joint])[None])[0]
+    want = d.deform(hp, rotations=joint[None], rotation_vectors=turns)
     assert np.abs(got - want).max() <= 1e-9 * diag(v) + 4e-7 * np.abs(want).max()
 
 

@@ -13,6 +13,8 @@ Its own inputs (docs/pose_space.md, "In Blender"):
   or twists the joint between them (the anchor's vertices are not held in place).
 - Settings: multiresolution (coarse face count) and the frozen faces (a vertex group, or a
   boolean face attribute / face map of that name).
+- Turns: the anchors' rotation vectors go to ``deform(rotation_vectors=...)`` on every update
+  (docs/pose_space.md, "Twists past half a turn").
 
 The example set and every example's coordinates are in the fingerprint, and the live update
 compares them with the bound ones bit for bit, so editing a key makes the bind stale.
@@ -297,10 +299,35 @@ class PoseSpaceMethod(Method):
             rot = np.stack([rf.T @ _rotation(transforms[j]) for j in solver.joints])
         return hp, rot
 
+    def _vectors(self, solver, transforms, rot, rotations) -> np.ndarray | None:
+        """(h + r,3) rotation vectors for ``deform``: each handle's anchor turn, then each
+        joint's turn relative to the frame anchor, on the branches of the session's vectors
+        (principal logs when it has none: every anchor within half a turn). Always given, so
+        that step 1 is solved the same way below and past half a turn (no pop at 180
+        degrees). None when a handle's Empty is mirrored (no rotation: positions alone)."""
+        mats = [transforms[i][:3, :3] for i, _idx in solver.handles]
+        start = None
+        if rotations is not None:
+            start = [rotations[i] for i, _idx in solver.handles]
+        if solver.joints:
+            mats.extend(rot)
+            if rotations is not None:
+                # R_f^T R_j turns by about R_f^T (v_j - v_f) (exact for a common axis)
+                rf = _rotation(transforms[solver.frame_anchor])
+                vf = rotations[solver.frame_anchor]
+                start.extend(rf.T @ (rotations[j] - vf) for j in solver.joints)
+        md = load_core()
+        try:
+            return md.unwrap_rotations(
+                np.stack(mats)[None], None if start is None else np.stack(start)
+            )[0]
+        except ValueError:  # det <= 0: a mirrored handle Empty has no rotation
+            return None
+
     def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
-        # rotations ignored: the core takes joints as matrices (docs/pose_space.md, turns)
         hp, rot = self._targets(solver, transforms)
-        x = solver.deformer.deform(hp, rot)
+        rv = self._vectors(solver, transforms, rot, rotations)
+        x = solver.deformer.deform(hp, rot, rotation_vectors=rv)
         state["weights"] = solver.deformer.example_weights
         return Result(x)
 

@@ -30,6 +30,13 @@
 
 namespace matdeform {
 
+// Largest angle (radians) by which exp of a handle's rotation vector may differ from the
+// handle's fitted rotation. The fit is to positions, which a scaled or sheared anchor moves off
+// any rotation, so it cannot be held to kRotationVectorTolerance; the vector only picks the
+// branch (the whole turns) of the fitted rotation, which any error below half a turn leaves
+// unambiguous, and a quarter of that still refuses another handle's vector or a sign slip.
+constexpr double kHandleVectorTolerance = 3.14159265358979323846 / 4;
+
 struct PoseSpaceOptions {
   // Face whose frame (rotation and centroid) the handle positions are measured in. Without it a
   // best-fit rigid frame of all handle vertices is used.
@@ -106,9 +113,18 @@ class PoseSpaceDeformer {
   // R_a^T R_b of the rotational pairs, or nullptr (joints free, pose from positions only).
   // frame_transform: rigid 4x4 moving the rest frame face to its place, or nullptr (then the
   // frame is measured from the handle positions, which must cover the frame face's vertices).
+  // rotation_vectors: (h + r, 3) or nullptr. Turns past half a turn, which the matrices and
+  // positions cannot show: row j < h a log of any length (axis * angle, radians) of handle j's
+  // rotation (its best rigid fit, rest -> handle_positions[j]), within kHandleVectorTolerance
+  // where that rotation is defined (three non-collinear vertices at rest and placed); row h + q
+  // a log of rotations[q] within kRotationVectorTolerance (unused without rotations). Given,
+  // step 1 minimises the geodesic energy from the natural shape with the handle and joint
+  // residuals on the branches these vectors pick (the chordal energy has one minimum, which
+  // cannot carry turns); nullptr keeps the options' energy and the principal logs.
   // Returns (n,3).
   Vertices deform(const std::vector<Vertices>& handle_positions, const Matrix3Array* rotations,
-                  const Eigen::Matrix4d* frame_transform = nullptr) const;
+                  const Eigen::Matrix4d* frame_transform = nullptr,
+                  const Vectors3* rotation_vectors = nullptr) const;
 
   // The example weights (p,) deform() would use for these inputs.
   Eigen::VectorXd pose_weights(const std::vector<Vertices>& handle_positions,
