@@ -9,8 +9,7 @@ is the rest alone, and step 1 is what carries (or loses) the turns.
 
 import numpy as np
 import pytest
-from conftest import ring_turns
-from conftest import rotation
+from conftest import ring_turns, rotation
 from test_deformer_twist import BAD as DEFORMER_BAD
 
 import matdeform as md
