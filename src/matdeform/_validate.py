@@ -188,3 +188,31 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     if t.shape[1] == 4 and np.abs(t[:, 3, :] - _AFFINE_ROW).max() > 1e-12:
         raise _fail(name, "4x4 transforms must be affine (bottom row 0 0 0 1)")
     return np.ascontiguousarray(t)
+
+
+# Scalars. The core takes C ints (32 bits) and doubles; a value beyond them must fail here, as a
+# ValueError naming the argument, not as pybind's TypeError or a MemoryError further on.
+MAX_INT32 = 2**31 - 1
+
+
+def as_count(x, name: str, lower: int = 0, upper: int = MAX_INT32) -> int:
+    """An integer in [lower, upper] (Python or numpy integers; bools are refused)."""
+    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
+        raise _fail(name, f"expected an integer in [{lower}, {upper}], got {x!r}")
+    if not lower <= int(x) <= upper:
+        raise _fail(name, f"expected an integer in [{lower}, {upper}], got {x!r}")
+    return int(x)
+
+
+def as_real(x, name: str, lower: float = 0.0, upper: float = np.inf) -> float:
+    """A finite float in [lower, upper] (bools are refused)."""
+    expected = f"expected a finite number in [{lower:g}, {upper:g}], got {x!r}"
+    if isinstance(x, bool):
+        raise _fail(name, expected)
+    try:
+        v = float(x)
+    except (TypeError, ValueError, OverflowError):
+        raise _fail(name, expected) from None
+    if not (np.isfinite(v) and lower <= v <= upper):
+        raise _fail(name, expected)
+    return v
