@@ -51,11 +51,13 @@ FUNCTIONS = [
     "blend_transforms",
     "obj_round_trip",
     "set_num_threads",
+    "PyramidDeformer",
 ]
 # Checked for relabelling on soups too: they only count and sort.
 TOPOLOGY = {"dual_edges", "face_components", "faces_inside", "boundary_and_nonmanifold_edges"}
 # Solvers get more cases: they have the most arguments.
 WEIGHTS = np.array([6, 2] + [1] * (len(FUNCTIONS) - 2), dtype=float)
+WEIGHTS[FUNCTIONS.index("PyramidDeformer")] = 4
 
 
 class Failure(Exception):
@@ -581,6 +583,63 @@ def case_threads(rng, v, f, hostile, perm, kind):
         md.set_num_threads(before)
 
 
+def case_pyramid(rng, v, f, hostile, perm, kind):
+    """Controls: a few random vertices, or a random ball of them; targets: their rest places
+    moved by a random similarity and noise. Every numeric argument of deform() is drawn, and a
+    hostile case breaks one of them (or the positions' scale)."""
+    n = len(v)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if n else 1.0
+    if rng.random() < 0.5:
+        ctrl = rng.permutation(n)[: int(rng.integers(1, min(n, 6) + 1))]
+    else:
+        centre = v[rng.integers(0, n)] if n else np.zeros(3)
+        near = np.argsort(np.linalg.norm(v - centre, axis=1))
+        ctrl = np.sort(near[: int(rng.integers(1, max(2, n // 3) + 1))])
+    R = random_rotation(rng) * 10.0 ** rng.uniform(-0.3, 0.3)
+    target = v[ctrl] @ R.T + rng.normal(scale=diag, size=3)
+    target = target + rng.normal(scale=rng.choice([0.0, 0.05, 0.3]) * diag, size=target.shape)
+    kw = {
+        "iterations": [None, 0, 1, 5, int(rng.integers(0, 200))][int(rng.integers(0, 5))],
+        "tol": float(10.0 ** rng.uniform(-10, -2)),
+        "scale_weight": float(rng.choice([0.0, 0.003, 10.0 ** rng.uniform(-4, 2)])),
+    }
+    if rng.random() < 0.3:
+        kw["initial"] = v * 10.0 ** rng.uniform(-1, 1) + rng.normal(scale=0.1 * diag, size=v.shape)
+    if hostile:
+        what = rng.choice(["iterations", "tol", "scale_weight", "initial", "target", "control"])
+        if what == "iterations":
+            kw["iterations"] = rng.choice([-1, 2**31, 2**40, 1.5, "x"]).item()
+        elif what == "tol":
+            kw["tol"] = rng.choice([-1e-6, np.nan, np.inf, "x"]).item()
+        elif what == "scale_weight":
+            kw["scale_weight"] = rng.choice([-1.0, np.nan, 1e300, "x"]).item()
+        elif what == "initial":
+            kw["initial"] = rng.choice([1e200, np.nan, -1]).item() * (v if n else np.zeros((0, 3)))
+        elif what == "target":
+            target = target * rng.choice([1e200, np.inf, np.nan]).item()
+        else:
+            ctrl = np.concatenate([ctrl, ctrl[:1]])
+            target = np.vstack([target, target[:1]])
+    d = md.PyramidDeformer(v, f, ctrl)
+    X = d.deform(target, **kw)
+    finite("PyramidDeformer.deform", X, d.last_energy)
+    if X.shape != (n, 3):
+        raise Failure("error", f"deform: shape {X.shape}")
+    # Relabelling: when converged from the start deform() builds, and when the controls pin the
+    # pose (one or two controls, or controls on a line, leave the turn about them free: a family
+    # of minima, docs/pyramid.md). Converged means within ~tol^2 of the minimum.
+    p = v[ctrl] - v[ctrl].mean(0)
+    pinned = len(ctrl) >= 3 and np.linalg.svd(p, compute_uv=False)[1] > 1e-6 * diag
+    if not perm or not pinned or not d.last_converged or "initial" in kw:
+        return
+    r = relabel_for(rng, v, f)
+    d2 = md.PyramidDeformer(r.vertices, r.faces, r.vertex_ids(ctrl))
+    X2 = d2.deform(target, **kw)
+    if d2.last_converged:
+        tol = max(1e-9, 10 * kw["tol"] ** 2) * max(diag, 1e-300)
+        close("PyramidDeformer.deform", r.to_original(X2), X, tol)
+
+
 CASES = {
     "MaterialDeformer": case_deformer,
     "harmonic_weights": case_harmonic_weights,
@@ -603,6 +662,7 @@ CASES = {
     "blend_transforms": case_blend,
     "obj_round_trip": case_obj,
     "set_num_threads": case_threads,
+    "PyramidDeformer": case_pyramid,
 }
 assert set(CASES) == set(FUNCTIONS)
 
