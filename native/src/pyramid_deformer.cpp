@@ -613,6 +613,8 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     // semidefinite one where it equals the exact one, no damping) below tol.
     bool accepted = false, done = false;
     double alpha = 1;
+    // Round-off of the energy (a sum over all pyramids): below it, energy changes mean nothing.
+    const double noise = 1e-13 * std::abs(E);
     if (newton && step <= limit) {
       moved(1.0);
       X.swap(trial);
@@ -625,7 +627,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       for (int tries = 0; tries < 4 && !accepted; ++tries, alpha *= 0.5) {
         moved(alpha);
         const double Et = S.fit_all(trial.data(), kappa, false);
-        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope) {
+        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {
           accepted = true;
           if (!exact && alpha == 1) {
             Vertices keep = trial;
@@ -646,11 +648,15 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         const double predicted = -(alpha - 0.5 * alpha * alpha) * slope;
         const double rho = predicted > 0 ? (E - E_new) / predicted : 0;
         E = E_new;
-        if (alpha >= 1 && rho > 0.5) {
+        // The damping follows how well the quadratic model predicted the decrease, where the
+        // decrease is measurable; a step already below tol goes on undamped and exact, so that
+        // the next one can meet the stopping rule.
+        if (step <= limit || (alpha >= 1 && rho > 0.5)) {
           mu = mu > kDampingStart ? mu / 4 : 0.0;
-        } else if (rho < 0.25) {
+        } else if (rho < 0.25 && predicted > 1e3 * noise) {
           mu = std::max(2 * mu, kDampingStart);
         }
+        if (step <= limit) mu = 0;
         if (!exact && alpha * step < kExactBelow * diag_) exact = true;
       } else if (exact) {
         exact = false;
@@ -662,16 +668,17 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     last_steps_.push_back(last_step_);
     last_energy_ = E;
     if (!std::isfinite(E)) throw std::runtime_error("pyramid deformer: the energy overflowed");
-    if (done) {
-      last_converged_ = true;
-      break;
-    }
     if (options.progress) {
       const auto now = std::chrono::steady_clock::now();
-      if (std::chrono::duration<double>(now - reported).count() >= options.progress_seconds) {
+      if (done ||
+          std::chrono::duration<double>(now - reported).count() >= options.progress_seconds) {
         reported = now;
         options.progress(last_iterations_, last_step_);
       }
+    }
+    if (done) {
+      last_converged_ = true;
+      break;
     }
   }
   return X;

@@ -113,8 +113,8 @@ class PyramidDeformer:
             rigid pyramids.
         progress : None, or a callable ``progress(iterations, step)`` (int, float: that
             iteration's largest vertex move as a fraction of the diagonal), called after an
-            iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) on the
-            calling thread. An exception it raises ends the call and propagates. The result
+            iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) and
+            after the last one, on the calling thread. An exception it raises ends the call and propagates. The result
             does not depend on it.
 
         After the call ``last_iterations`` is the number of Newton iterations, ``last_step``

@@ -58,7 +58,7 @@ struct PyramidSolveOptions {
   const Vertices* initial = nullptr;
   // Called on the calling thread after an iteration with (iterations so far, that iteration's
   // step as a fraction of the rest diagonal), at most every progress_seconds (0: after every
-  // one). An exception it throws ends deform() and propagates.
+  // one) and after the converged one. An exception it throws ends deform() and propagates.
   std::function<void(int, double)> progress;
   double progress_seconds = 0.1;
 };
