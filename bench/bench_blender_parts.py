@@ -87,7 +87,7 @@ def main():
 
         handler = median_ms(handler_step, args.reps)
         entry = session.entry_for(obj, scene)
-        rest_check = median_ms(lambda i: session._check_rest(obj, entry), 5 * args.reps)
+        rest_check = median_ms(lambda i: session.output._check_rest(obj, entry), 5 * args.reps)
         # Blender alone: the same Empty moves and updates with the object not live
         floor = median_ms(lambda i: (move(i + 500), vl.update(), vl.update()), args.reps)
         s.live = True
@@ -96,7 +96,7 @@ def main():
         # the same live updates again, timing the solver's deform() and session.apply inside them
         inside = {"deform": [], "apply": []}
         deformer = entry.solver.deformer
-        apply_fn = session.apply
+        apply_fn = session.live.apply  # what live_update calls
 
         class Timed:
             def __getattr__(self, name):
@@ -114,11 +114,11 @@ def main():
             inside["apply"].append(time.perf_counter() - t)
             return out
 
-        entry.solver.deformer, session.apply = Timed(), timed_apply
+        entry.solver.deformer, session.live.apply = Timed(), timed_apply
         try:
             full2 = median_ms(lambda i: (move(i + 2000), vl.update(), vl.update()), args.reps)
         finally:
-            entry.solver.deformer, session.apply = deformer, apply_fn
+            entry.solver.deformer, session.live.apply = deformer, apply_fn
         button = update_button(obj, scene, vl) if args.update_button else None
     finally:
         for p in spinners:

@@ -1,14 +1,16 @@
 """Core timing benchmark: precompute (constructor) and per-deform() time.
 
 Usage: python bench/bench_core.py [--repeats 30] [--sizes 10000 50000 200000] [--region]
-       python bench/bench_core.py --blender-like [--sizes 10000 50000]
+       python bench/bench_core.py --blender-like [--sizes 10000 50000] [--turns]
 Reports medians over repeated runs. Not a test: targets are compared and printed only.
 
 The default rows feed clean float64 rotations to two anchors: a lower bound. --blender-like adds
 the inputs of a real live update in Blender: six anchors turned freely, their transforms made
 as the add-on makes them from Blender's float32 matrices (inv(M_bind) of a stored float32
 bind matrix times the float32 matrix now), once with rotations only and once with one Empty
-scaled non-uniformly.
+scaled non-uniformly. --turns adds the same poses given with rotation vectors one whole turn
+longer than the principal logs (deform(rotation_vectors=...), a twist animated past a turn):
+the check per anchor and the blend's sin/cos for angles beyond the series range.
 """
 
 from __future__ import annotations
@@ -99,8 +101,20 @@ def cat_anchors(v, f, k=6, radius=0.05):
     return anchors
 
 
+def turned_vectors(T):
+    """(count,k,3) rotation vectors of the poses T, each one whole turn longer than its
+    principal log (an anchor animated one turn further)."""
+    out = np.empty(T.shape[:2] + (3,))
+    for p in range(T.shape[0]):
+        for a in range(T.shape[1]):
+            r = md.transform_log(T[p, a, :3, :3])[1]
+            out[p, a] = r + 2 * np.pi * r / max(np.linalg.norm(r), 1e-300)
+    return out
+
+
 def measure(name, v, f, anchors, repeats, mode):
-    """mode: "4x4" / "3x3" (clean float64 rotations), "blender" / "blender scaled"."""
+    """mode: "4x4" / "3x3" (clean float64 rotations), "blender" / "blender scaled" /
+    "blender turns" (the blender poses, given with vectors one turn longer)."""
     t0 = time.perf_counter()
     d = md.MaterialDeformer(v, f, anchors)
     pre = time.perf_counter() - t0
@@ -111,10 +125,13 @@ def measure(name, v, f, anchors, repeats, mode):
     if mode == "3x3":
         T = T[:, :, :3, :3]
         d.deform(T[0])  # first rotation-only call factors its own system; timed separately
+    kw = [{}] * len(T)
+    if mode == "blender turns":
+        kw = [{"rotation_vectors": rv} for rv in turned_vectors(T)]
     times = []
     for p in range(len(T)):
         t0 = time.perf_counter()
-        X = d.deform(T[p])
+        X = d.deform(T[p], **kw[p])
         times.append(time.perf_counter() - t0)
         assert np.isfinite(X).all()
     per = statistics.median(times[3:]) * 1e3
@@ -178,14 +195,20 @@ def main():
         action="store_true",
         help="also six freely turned anchors from float32 matrices, plain and with one scaled",
     )
+    ap.add_argument(
+        "--turns",
+        action="store_true",
+        help="with --blender-like: also the plain poses given with vectors one turn longer",
+    )
     args = ap.parse_args()
     if args.threads:
         md.set_num_threads(args.threads)
 
     rows = []
+    blender_modes = ("blender", "blender scaled", *(("blender turns",) if args.turns else ()))
     for size in args.sizes if args.blender_like else []:
         v, f = shapes.tube_with_faces(size)
-        for mode in ("blender", "blender scaled"):
+        for mode in blender_modes:
             r = measure(f"tube {size // 1000}k, 6 rings", v, f, rings(v, f, 6), args.repeats, mode)
             r["target"] = None
             rows.append(r)
@@ -205,7 +228,7 @@ def main():
             rows.append(r)
     v, f = np.load(CAT / "reference.npy"), np.load(CAT / "faces.npy")
     anchors = cat_anchors(v, f)
-    for mode in ("4x4", "3x3", *(("blender", "blender scaled") if args.blender_like else ())):
+    for mode in ("4x4", "3x3", *(blender_modes if args.blender_like else ())):
         runs = [
             measure("cat", v, f, anchors, args.repeats, mode)
             for _ in range(args.precompute_repeats)

@@ -13,8 +13,13 @@ will pass them. Per mesh:
   live        plane 10k only: a drag of --steps small handle moves (0.3% of the diagonal and
               1 degree each), each update warm-started from the previous result and run to
               tol=1e-5: time and iterations per update (median, 90th percentile)
+  cat         the real cat (data/cat-poses, 7,207 vertices) with the quality benchmark's six
+              anchors (feet, head, tail) pinned at each pose's positions, solved from rest to
+              tol=1e-5 (<= --max-iterations), relaxation 1 and 0.8: iterations, time and RMS
+              error / diagonal against the true pose, per pose
 
     python bench/bench_edge.py [--threads N] [--repeats 30] [--poses 5] [--steps 60]
+        [--cat-poses 1,2,...] [--cat-only]
 
 Not a test: targets are compared and printed only.
 """
@@ -26,6 +31,7 @@ import os
 import platform
 import statistics
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -178,6 +184,39 @@ def live(v, f, groups, args):
     }
 
 
+def cat(args):
+    """Per cat pose and relaxation: (pose, relaxation, iterations, seconds, RMS error / diag)."""
+    from bench_quality import anchor_points, anchor_regions, rms_error
+
+    data = Path(__file__).resolve().parent.parent / "data" / "cat-poses"
+    v, f = np.load(data / "reference.npy"), np.load(data / "faces.npy")
+    poses = np.load(data / "poses.npy")
+    diag = float(np.linalg.norm(v.max(0) - v.min(0)))
+    pinned = np.unique(np.concatenate(anchor_regions(v, f, anchor_points(v))[0]))
+    d = md.EdgeDeformer(v, f, pinned, stretch=STRETCH, bend=BEND)
+    out = []
+    for k in args.cat_poses:
+        p = poses[k - 1]
+        for w in (1.0, 0.8):
+            t0 = time.perf_counter()
+            x = d.solve(p[pinned], iterations=args.max_iterations, tol=1e-5, relaxation=w)
+            dt = time.perf_counter() - t0
+            out.append((k, w, d.last_iterations, dt, rms_error(x, p, diag)))
+    return out
+
+
+def print_cat(args):
+    print(
+        f"\ncat from rest to tol 1e-5 (<= {args.max_iterations} iterations), "
+        f"{md.num_threads()} thread(s), load average {os.getloadavg()[0]:.2f}:"
+    )
+    print("| pose | relaxation | iterations | time (s) | RMS error / diag |")
+    print("|---:|---:|---:|---:|---:|")
+    for k, w, its, dt, err in cat(args):
+        capped = " (cap)" if its >= args.max_iterations else ""
+        print(f"| {k} | {w:g} | {its}{capped} | {dt:.3f} | {err:.4f} |", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--threads", type=int, default=None, help="md.set_num_threads(N) first")
@@ -187,9 +226,19 @@ def main():
     ap.add_argument("--steps", type=int, default=60)
     ap.add_argument("--budget", type=int, default=5, help="iterations of a fixed-budget update")
     ap.add_argument("--max-iterations", type=int, default=2000)
+    ap.add_argument(
+        "--cat-poses",
+        type=lambda s: [int(k) for k in s.split(",")],
+        default=list(range(1, 10)),
+        help="cat poses to solve (1-9)",
+    )
+    ap.add_argument("--cat-only", action="store_true", help="only the cat section")
     args = ap.parse_args()
     if args.threads:
         md.set_num_threads(args.threads)
+    if args.cat_only:
+        print_cat(args)
+        return
     rng = np.random.default_rng(13)
 
     rows = [measure(name, v, f, g, args, rng) for name, v, f, g in meshes()]
@@ -224,6 +273,7 @@ def main():
         f"target <= {LIVE_TARGET_MS:g} ms: {ok}. Fixed budget of {args.budget} iterations: "
         f"{lv['budget_ms']:.2f} ms median."
     )
+    print_cat(args)
 
 
 if __name__ == "__main__":

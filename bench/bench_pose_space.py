@@ -9,6 +9,12 @@ whole. Reports medians over repeated edits; per-step medians from ``d.last_stats
 
     python bench/bench_pose_space.py [--repeats 30] [--threads 1] [--refactor]
         [--cases 17k 17k-multires 140k-multires cat cat-multires]
+
+Peak memory of a bind (and one deform()) at single resolution and with ``coarse`` faces, each
+case in a child process of its own (its peak resident set size, ru_maxrss, with the inputs'
+share before the bind):
+
+    python bench/bench_pose_space.py --cases --memory 1000000 [--coarse 1000]
 """
 
 from __future__ import annotations
@@ -21,7 +27,9 @@ import os
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import platform  # noqa: E402
+import resource  # noqa: E402
 import statistics  # noqa: E402
+import subprocess  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -181,6 +189,34 @@ def refactor_ms(faces, repeats=3):
     return best * 1e3
 
 
+def memory_child(faces, coarse):
+    """In a child process: peak RSS (MB) before and after a bind plus one deform(), bind time."""
+    v, f, handles = tube_case(faces)
+    ex = example_poses(v, 10)
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    t0 = time.perf_counter()
+    d = md.PoseSpaceDeformer(v, f, ex, handles, coarse=coarse)
+    bind = time.perf_counter() - t0
+    X = d.deform(edits(v, ex, handles, 1)[0])
+    assert np.isfinite(X).all()
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(
+        f"MEMORY {len(f)} {len(d.coarse_faces) if coarse else 0} {before:.0f} {peak:.0f} {bind:.2f}"
+    )
+
+
+def memory_table(faces, coarse, threads):
+    print("| faces | coarse | inputs (MB) | peak RSS (MB) | bind (s) |")
+    print("|---:|---:|---:|---:|---:|")
+    for c in (None, coarse):
+        cmd = [sys.executable, __file__, "--child-memory", str(faces), str(c or 0)]
+        if threads:
+            cmd += ["--threads", str(threads)]
+        out = subprocess.run(cmd, capture_output=True, text=True, check=True).stdout
+        nf, nc, before, peak, bind = out.split("MEMORY")[-1].split()
+        print(f"| {nf} | {nc if c else '-'} | {before} | {peak} | {bind} |", flush=True)
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=30)
@@ -190,20 +226,27 @@ def main():
     ap.add_argument(
         "--refactor", action="store_true", help="also time a per-edit factorisation (scipy)"
     )
+    ap.add_argument("--memory", type=int, metavar="FACES", help="peak memory of a bind, per case")
+    ap.add_argument("--coarse", type=int, default=1000, help="coarse faces of --memory")
+    ap.add_argument("--child-memory", nargs=2, type=int, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.threads:
         md.set_num_threads(args.threads)
+    if args.child_memory:
+        memory_child(args.child_memory[0], args.child_memory[1] or None)
+        return
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     print(
         f"*{platform.machine()}, {os.cpu_count()} cores, {md.num_threads()} solver thread(s), "
         f"load average {load:.2f}*"
     )
-    print(
-        "| case | faces | coarse | examples | precompute (s) | deform() median (ms) | best (ms) "
-        "| weights / blend / rotations / positions / fit / transfer (ms, medians) "
-        "| CG its | target |"
-    )
-    print("|---|---:|---:|---:|---:|---:|---:|---|---|---|")
+    if args.cases:
+        print(
+            "| case | faces | coarse | examples | precompute (s) | deform() median (ms) "
+            "| best (ms) | weights / blend / rotations / positions / fit / transfer (ms, medians) "
+            "| CG its | target |"
+        )
+        print("|---|---:|---:|---:|---:|---:|---:|---|---|---|")
     for case in args.cases:
         coarse = 1000 if case.endswith("multires") else None
         if case.startswith("cat"):
@@ -234,6 +277,8 @@ def main():
             f"{s['iterations_first']:.0f}+{s['iterations_second']:.0f} | {met} |",
             flush=True,
         )
+    if args.memory:
+        memory_table(args.memory, args.coarse, args.threads)
     if args.refactor:
         for faces in (1000, 17_000):
             _, f, _ = tube_case(faces)

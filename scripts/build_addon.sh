@@ -94,6 +94,10 @@ skip = shutil.ignore_patterns("__pycache__", "*.pyc", "_vendor")
 # register() reads the wheel's tags from it to check the platform)
 legacy = build / "legacy" / "material_deform"
 shutil.copytree(src, legacy, ignore=skip)
+# the farm job template and its tasks' script (farm/), which Write Farm Bake Job copies
+farm_files = [root / "farm" / "material_deform_bake.yaml", root / "farm" / "material_deform_farm_task.py"]
+for f in farm_files:
+    shutil.copy(f, legacy / f.name)
 (legacy / "blender_manifest.toml").unlink()
 with zipfile.ZipFile(wheel) as whl:
     for name in whl.namelist():
@@ -136,6 +140,8 @@ if sboms:
 # extension: manifest at the root, wheel under wheels/
 ext = build / "extension"
 shutil.copytree(src, ext, ignore=skip)
+for f in farm_files:
+    shutil.copy(f, ext / f.name)
 (ext / "wheels").mkdir()
 shutil.copy(wheel, ext / "wheels" / wheel.name)
 # platforms: what the wheel is built for, and nothing else (Blender refuses the others)

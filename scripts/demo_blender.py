@@ -9,7 +9,10 @@
   sideways), posed through the add-on by dragging its tip Empty between and beyond them:
   out/demo_pose_space.blend, out/demo_pose_space_addon.png;
 - Pyramid coordinates: a tentacle and a bar posed with the anchor faces' vertices as the only
-  control vertices, no painting: out/demo_pyramid.blend, out/demo_pyramid_blender.png.
+  control vertices, no painting: out/demo_pyramid.blend, out/demo_pyramid_blender.png;
+- a 540-degree twist keyed on the top Empty of a striped tube, Blender's Laplacian Deform
+  beside each method that carries turns past half a turn: out/demo_twist.blend,
+  out/demo_twist.png.
 
     blender -b --factory-startup --python scripts/demo_blender.py      (or scripts/demo_blender.sh)
 
@@ -301,7 +304,7 @@ def ps_pose_tip(obj, tip, v, target):
 
 
 def build_pose_space():
-    from material_deform import bridge
+    from material_deform import bridge, session
     from material_deform.methods import pose_space
 
     bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
@@ -330,7 +333,7 @@ def build_pose_space():
             assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
             ps_pose_tip(obj, tip, v, ps_bend(v, pose[0], pose[1]))
             x = bridge.shape_key_positions(obj, s.output_key_name)
-            w = pose_space.weights_readout(obj)
+            w = pose_space.weights_readout(session.cached_entry(obj))
             shown = " ".join(f"{wi:.2f}" for _n, wi in w)
             print(f"pose space demo, {text}: weights (rest, curl, side) = {shown}")
             label(text, (x0 + 0.8, 0.0, 5.6))
@@ -505,6 +508,114 @@ def build_pyramid():
     return scene
 
 
+# --- turns past half a turn -------------------------------------------------------------------
+
+# Methods shown beside Laplacian Deform: those that carry an anchor's turns past half a turn
+# (Edge-based, Pyramid and Pose space join once their solves start from the unwrapped turns).
+TWIST_METHODS = (("MATERIAL", "Material-aware"),)
+TWIST_DEGREES, TWIST_FRAME = 540, 19  # keyed from 0 at frame 1, linearly: 30 degrees a frame
+TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.5, 61, 24
+TWIST_SPACING = 2.6  # between the columns' axes
+
+
+def striped_tube(name, x):
+    """The tube of md.shapes.tube's proportions (10 radii long) along +Z, with two lengthwise
+    stripes (a colour attribute Workbench shows): a twist draws them as helices."""
+    obj = tube(name, lambda t: TWIST_RADIUS, TWIST_LENGTH, TWIST_RINGS, TWIST_SIDES, (x, 0.0, 0.0))
+    side = np.arange(len(obj.data.vertices)) % TWIST_SIDES
+    # two stripes, one facing the camera (-y) at rest
+    stripe = ((side - 3 * TWIST_SIDES // 4 + 1) % (TWIST_SIDES // 2)) < TWIST_SIDES // 8
+    rgba = np.where(stripe[:, None], [0.85, 0.25, 0.1, 1.0], [0.92, 0.92, 0.88, 1.0])
+    me = obj.data
+    attr = me.color_attributes.new("Stripes", "FLOAT_COLOR", "POINT")
+    attr.data.foreach_set("color", rgba.astype(np.float32).ravel())
+    me.color_attributes.active_color = attr
+    return obj
+
+
+def key_twist(empty):
+    """The Empty's turn about the tube's axis keyed from 0 (frame 1) to TWIST_DEGREES (linear)."""
+    empty.rotation_mode = "XYZ"
+    empty.rotation_euler = (0.0, 0.0, 0.0)
+    empty.keyframe_insert("rotation_euler", index=2, frame=1)
+    empty.rotation_euler.z = math.radians(TWIST_DEGREES)
+    empty.keyframe_insert("rotation_euler", index=2, frame=TWIST_FRAME)
+    from material_deform import bridge
+
+    for fc in bridge.action_fcurves(empty.animation_data):
+        for k in fc.keyframe_points:
+            k.interpolation = "LINEAR"
+
+
+def laplacian_twist(x):
+    """Laplacian Deform with both end rings as anchors, the top one on a Hook whose Empty is
+    keyed like the add-on's (Blender's own setup, bench/bench_blender.py)."""
+    obj = striped_tube("Laplacian Deform", x)
+    me = obj.data
+    z = np.array([v.co.z for v in me.vertices])
+    bottom = np.flatnonzero(z < 1e-4).tolist()
+    top = np.flatnonzero(z > TWIST_LENGTH - 1e-4).tolist()
+    obj.vertex_groups.new(name="Anchors").add(bottom + top, 1.0, "REPLACE")
+    hook_empty = bpy.data.objects.new("Laplacian hook", None)
+    bpy.context.scene.collection.objects.link(hook_empty)
+    hook_empty.location = (x, 0.0, TWIST_LENGTH)
+    bpy.context.view_layer.update()
+    hook = obj.modifiers.new("Hook", "HOOK")
+    hook.object = hook_empty
+    hook.vertex_indices_set(top)
+    hook.matrix_inverse = hook_empty.matrix_world.inverted()
+    lap = obj.modifiers.new("LaplacianDeform", "LAPLACIANDEFORM")
+    lap.vertex_group = "Anchors"
+    activate(obj)
+    bpy.context.view_layer.update()
+    with bpy.context.temp_override(object=obj, active_object=obj):
+        bpy.ops.object.laplaciandeform_bind(modifier=lap.name)
+    bpy.context.view_layer.update()
+    key_twist(hook_empty)
+    return obj
+
+
+def build_twist():
+    """Laplacian Deform and each method of TWIST_METHODS, the top of each tube keyed to turn by
+    TWIST_DEGREES, shown at the frame it gets there."""
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    scene = bpy.context.scene
+    scene.frame_set(1)
+    columns = [("Laplacian Deform", None)] + [(label_, key) for key, label_ in TWIST_METHODS]
+    for i, (text, method) in enumerate(columns):
+        x = TWIST_SPACING * i
+        if method is None:
+            laplacian_twist(x)
+        else:
+            obj = striped_tube(text, x)
+            obj.material_deform.method = method
+            add_anchor(obj, lambda p: p.center.z < 1e-4)
+            top = add_anchor(obj, lambda p: p.center.z > TWIST_LENGTH - 1e-4)
+            top.empty.rotation_euler = (0.0, 0.0, 0.0)  # upright: Z along the tube's axis
+            bpy.context.view_layer.update()
+            activate(obj)
+            assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+            key_twist(obj.material_deform.anchors[1].empty)
+        label(text, (x, -1.0, TWIST_LENGTH + 0.55))
+    scene.frame_set(TWIST_FRAME)
+    middle = 0.5 * TWIST_SPACING * (len(columns) - 1)
+    label(f"top turned by {TWIST_DEGREES} degrees", (middle, -1.0, -0.75))
+    for ob in scene.objects:
+        if ob.type == "EMPTY":
+            ob.empty_display_size = 0.35
+        if ob.type == "FONT":
+            ob.data.size = 0.28
+    camera_and_light(scene)
+    scene.world.color = (0.18, 0.18, 0.2)  # the white labels read on a dark ground
+    cam = scene.camera
+    width = TWIST_SPACING * len(columns) + 1.2
+    cam.data.ortho_scale = max(width, TWIST_LENGTH + 2.4)
+    cam.location = (middle, -20.0, TWIST_LENGTH / 2)
+    scene.render.resolution_x = round(1000 * width / cam.data.ortho_scale)
+    scene.render.resolution_y = round(1000 * (TWIST_LENGTH + 2.4) / cam.data.ortho_scale)
+    return scene
+
+
 def save_and_render(scene, blend_name, png_name, **render_options):
     """Save the current file as out/<blend_name> and render the scene to out/<png_name>."""
     blend = OUT / blend_name
@@ -530,6 +641,8 @@ def main():
     scene = build_pyramid()
     camera_and_light(scene)
     save_and_render(scene, "demo_pyramid.blend", "demo_pyramid_blender.png", color_type="MATERIAL")
+
+    save_and_render(build_twist(), "demo_twist.blend", "demo_twist.png")
 
 
 main()

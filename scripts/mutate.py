@@ -261,7 +261,8 @@ MUTATIONS = [
     M(
         "P8",
         "native/src/pyramid_start.cpp",
-        "    for (int i = 0; i < u; ++i) field.row(S.field_vertex[static_cast<size_t>(i)]) = sol.row(i);",
+        "    for (int i = 0; i < u; ++i) field.row(S.field_vertex[static_cast<size_t>(i)]) = "
+        "sol.row(i);",
         "",
         "the start's rotation field is not interpolated (the overall fit everywhere)",
     ),
@@ -407,6 +408,56 @@ MUTATIONS = [
         "      w = w.cwiseMax(0.0);\n",
         "",
         "convex pose weights are not clipped at zero",
+    ),
+    # Turns past half a turn: rotation vectors and their unwrapping.
+    M(
+        "TW1",
+        "native/src/deformer.cpp",
+        "(*logs)[a].rotation = v.row(static_cast<Eigen::Index>(a));",
+        "(*logs)[a].rotation = rotation_log(rotation_exp(v.row(static_cast<Eigen::Index>(a))));",
+        "given rotation vectors are re-wrapped to the principal branch",
+    ),
+    M(
+        "TW2",
+        "native/src/deformer.cpp",
+        "if (!(err <= kRotationVectorTolerance)) {",
+        "if (!(err <= 100 * kRotationVectorTolerance)) {",
+        "rotation vectors 100x farther from their anchor's rotation are accepted",
+    ),
+    M(
+        "TW3",
+        "native/src/deformer.cpp",
+        "rotation_vector_mismatch(va, rotation_exp((*logs)[a].rotation));",
+        "rotation_vector_mismatch(va, rotation_exp((*logs)[0].rotation));",
+        "every rotation vector is checked against anchor 0's rotation",
+    ),
+    M(
+        "TW4",
+        "native/src/transforms.cpp",
+        "best = (theta + kTwoPi * std::round((u.dot(near) - theta) / kTwoPi)) * u;",
+        "best = (theta + kTwoPi * std::floor((u.dot(near) - theta) / kTwoPi)) * u;",
+        "unwrapping picks the whole turns below the previous vector, not the nearest",
+    ),
+    M(
+        "TW5",
+        "native/src/transforms.cpp",
+        "if (theta <= kRotationVectorTolerance && len >= 0.5 * kTwoPi) {",
+        "if (false) {",
+        "at a whole turn the identity's noisy axis replaces the previous vector's",
+    ),
+    M(
+        "TW6",
+        "native/src/transforms.cpp",
+        "return (((t - k * kTwoPiHi) - k * kTwoPiMid) - k * kTwoPiLo) / t;",
+        "return ((t - k * kTwoPiHi) - k * kTwoPiLo) / t;",
+        "whole turns are taken out with 2 pi rounded to float (off by 1.7e-7 rad per turn)",
+    ),
+    M(
+        "TW7",
+        "src/matdeform/deformer.py",
+        "return self._core.deform(t, pp, rv)",
+        "return self._core.deform(t, pp, None)",
+        "the numpy API drops rotation_vectors (float64 result)",
     ),
 ]
 

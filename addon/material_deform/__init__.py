@@ -21,9 +21,9 @@ bl_info = {
 
 
 def _modules():
-    from . import handlers, operators, properties, ui
+    from . import farm, handlers, operators, properties, ui
 
-    return (properties, operators, ui, handlers)
+    return (properties, operators, farm, ui, handlers)
 
 
 # Why the bundled native core cannot run in this Blender, or None (set by register()).

@@ -19,12 +19,26 @@ def state(obj) -> str:
     return f"Baked {n} frame(s) to shape keys" if n else ""
 
 
+def frame_start(entry) -> None:
+    """The rule that makes a baked frame depend on its frame only, for every method: each frame
+    is solved from an empty method state, as the first frame a fresh process solves (a farm
+    bakes chunks of frames in other processes, in any order). An iterative method then starts
+    from its own start, never from the previous frame's result (Edge: the rest mesh; Pyramid:
+    the controls' best-fit similarity of the rest mesh); the direct methods keep no result.
+    Called before each baked frame; the method's settings are read again by the solve's own
+    checks. The anchors' rotation vectors (``session.twist``) are not state: for keyframed
+    anchors they follow from the frame alone (what is cached is the animation's), and only an
+    anchor the sampler cannot evaluate continues from the pose shown before."""
+    entry.state.clear()
+
+
 def _solved_frames(obj, scene, frames, progress, unsettled=None):
-    """(frame, positions (n,3)) for every frame, each solved to convergence (the method picks
-    its start: Edge continues from the previous frame, Pyramid starts every frame cold). Never
-    a non-finite frame (BindError). The scene's frame is restored afterwards. ``unsettled``: a
-    list that gets (frame, status text) of every frame an iterative method wrote without
-    converging (it ran out of Max Sweeps / Settle Max)."""
+    """(frame, positions (n,3)) for every frame, each solved to convergence from a start that
+    depends on that frame only (:func:`frame_start`), so the frames may come in any order and
+    a chunk of them gives the same positions as the whole range. Never a non-finite frame
+    (BindError). The scene's frame is restored afterwards. ``unsettled``: a list that gets
+    (frame, status text) of every frame an iterative method wrote without converging (it ran
+    out of Max Sweeps / Settle Max)."""
     progress = progress or (lambda _f, _t: None)
     entry = session.entry_for(obj, scene)
     old = scene.frame_current
@@ -33,6 +47,7 @@ def _solved_frames(obj, scene, frames, progress, unsettled=None):
             progress(i / len(frames), f"Material Deform: baking frame {f} ({i + 1}/{len(frames)})")
             bridge.frame_set(scene, f)
             dg = bridge.evaluated_depsgraph_from_scene(scene)
+            frame_start(session.entry_for(obj, scene))
             x = session.compute(obj, scene, dg, budget=None)
             session.check_finite(obj, entry, x)
             status = session.solve_status(obj)
@@ -89,17 +104,16 @@ def cache_path(obj, path: str) -> tuple[str, str]:
     return path, full
 
 
-def bake_point_cache(obj, scene, frames, path: str = "", progress=None, unsettled=None) -> str:
-    """Write the frames to a .pc2 file and read it back through a Mesh Cache modifier at the
-    top of the stack (replacing an earlier bake); turns Live off. Returns the absolute path.
+def write_point_cache(obj, scene, frames, full: str, progress=None, unsettled=None) -> None:
+    """Solve the frames (:func:`_solved_frames`) into the .pc2 file ``full`` (an absolute path),
+    atomically: on any error an existing file stays as it was, and so does the object. Live is
+    off when it succeeds (the caller hands the mesh over to the cache, or discards the file).
     ``unsettled``: see :func:`_solved_frames`."""
     frames = list(frames)
-    stored, full = cache_path(obj, path)
-    n = len(obj.data.vertices)
     s = settings(obj)
-    live, s.live = s.live, False
+    live, s.live = s.live, False  # our own frame changes must not write the live key
     try:
-        with PC2Writer(full, n, len(frames), frames[0]) as out:
+        with PC2Writer(full, len(obj.data.vertices), len(frames), frames[0]) as out:
             for _f, x in _solved_frames(obj, scene, frames, progress, unsettled):
                 out.add(x)
     except OSError as exc:
@@ -108,9 +122,24 @@ def bake_point_cache(obj, scene, frames, path: str = "", progress=None, unsettle
     except BaseException:
         s.live = live
         raise
+
+
+def use_point_cache(obj, scene, stored: str, start: int) -> None:
+    """Let the .pc2 file ``stored`` (as the modifier stores it, e.g. '//Bar.pc2'), whose first
+    sample is frame ``start``, drive the mesh: replaces an earlier bake, Live off."""
     clear(obj, scene, restore_live=False)
-    bridge.add_cache_modifier(obj, stored, frames[0])
+    bridge.add_cache_modifier(obj, stored, start)
     _hand_over(obj)
+
+
+def bake_point_cache(obj, scene, frames, path: str = "", progress=None, unsettled=None) -> str:
+    """Write the frames to a .pc2 file and read it back through a Mesh Cache modifier at the
+    top of the stack (replacing an earlier bake); turns Live off. Returns the absolute path.
+    ``unsettled``: see :func:`_solved_frames`."""
+    frames = list(frames)
+    stored, full = cache_path(obj, path)
+    write_point_cache(obj, scene, frames, full, progress, unsettled)
+    use_point_cache(obj, scene, stored, frames[0])
     return full
 
 

@@ -1,13 +1,13 @@
 """Live updates: Empties moved interactively (depsgraph) or by animation (frame change, also
 in background renders), rebuilding solvers after a .blend is loaded and re-validating them after
-undo/redo."""
+undo/redo; and the session's answers to changed settings (``updates``)."""
 
 from __future__ import annotations
 
 import bpy
 from bpy.app.handlers import persistent
 
-from . import bake, session, stiffness
+from . import bake, session, stiffness, updates
 
 _busy = False  # our own shape-key write triggers another depsgraph update
 
@@ -66,6 +66,7 @@ def _subscribe():
 def on_depsgraph_update(scene, depsgraph=None):
     if not _busy:
         _guard_paint()
+        session.note_changes(depsgraph)  # an edited animation: its cached turns are checked
     _run(scene, None)
 
 
@@ -90,6 +91,7 @@ def on_load(_filepath=None, *_args):
     # fingerprints still match) but do not deform yet: world matrices are not evaluated during
     # load_post, the first depsgraph update after loading does that.
     session.clear_cache()
+    session.forget_changes()
     _subscribe()  # loading a file clears the subscriptions
     scene = bpy.context.scene
     if scene is not None:
@@ -120,9 +122,11 @@ def register():
         if fn not in lst:
             lst.append(fn)
     _subscribe()
+    updates.connect(session.LISTENER)
 
 
 def unregister():
+    updates.disconnect()
     for name, fn in _HANDLERS:
         lst = getattr(bpy.app.handlers, name)
         if fn in lst:

@@ -259,7 +259,7 @@ class MESH_OT_material_deform_add_anchor(_Operator, bpy.types.Operator):
             anc.empty = empty
             anc.mode = self.mode
             s.active_anchor_index = len(s.anchors) - 1
-            session.place_new_anchor(obj, empty, verts)
+            session.place_new_anchor(obj, empty, verts, context.scene.frame_current)
         if s.bound:
             self.report({"WARNING"}, "Anchor added: click Rebind to use it")
         return {"FINISHED"}

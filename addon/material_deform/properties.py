@@ -16,17 +16,16 @@ from bpy.props import (
     StringProperty,
 )
 
-from . import methods
+from . import methods, updates
 
 IDENTITY16 = (1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1)
+UNKNOWN_BIND_FRAME = -(2**31)  # session.twist.UNKNOWN_FRAME
 
 
 def _settings_changed(self, context):
     """A setting the bind depends on changed: compare the object with its bound state again
     (so changing a setting back makes the bind valid again)."""
-    from . import session  # late: session imports the core lazily, keep registration light
-
-    session.settings_changed(self.id_data, getattr(context, "scene", None))
+    updates.bind_setting(self, context)
 
 
 def _is_empty(_self, obj):
@@ -80,6 +79,9 @@ class MaterialDeformAnchor(bpy.types.PropertyGroup):
     )
     # world matrix of the Empty at bind time (its bind pose), row-major
     bind_matrix: FloatVectorProperty(size=16, default=IDENTITY16, options={"HIDDEN"})
+    # the scene frame of the bind pose: turns are counted along the animation from there
+    # (UNKNOWN_BIND_FRAME: bound by an older version; the scene's start frame is used)
+    bind_frame: IntProperty(default=UNKNOWN_BIND_FRAME, options={"HIDDEN"})
     # the Empty the bind pose belongs to (None: not bound yet, or bound by an older version)
     bound_empty: PointerProperty(type=bpy.types.Object, options={"HIDDEN"})
 
@@ -261,26 +263,35 @@ class MaterialDeformSettings(bpy.types.PropertyGroup):
     )
 
 
-# Each method's own settings group becomes obj.material_deform.<settings_name>.
-for _m in methods.all_methods():
-    if _m.settings_class is not None:
-        MaterialDeformSettings.__annotations__[_m.settings_name] = PointerProperty(
-            type=_m.settings_class
-        )
-
-classes = (
-    MaterialDeformAnchor,
-    *(m.settings_class for m in methods.all_methods() if m.settings_class is not None),
-    MaterialDeformSettings,
-)
-_register_classes, _unregister_classes = bpy.utils.register_classes_factory(classes)
+# The methods registered when the add-on registers, not when this module is imported, make the
+# Method menu (its annotation is a string, evaluated by register_class) and the settings groups,
+# so a method registered later (a script, a test) only needs the add-on registered again.
+classes: tuple = ()  # what register() registered, unregistered in reverse
+_groups: list[str] = []  # the settings groups register() added to MaterialDeformSettings
 
 
 def register():
-    _register_classes()
+    global classes
+    with_settings = [m for m in methods.all_methods() if m.settings_class is not None]
+    for m in with_settings:  # obj.material_deform.<settings_name>
+        MaterialDeformSettings.__annotations__[m.settings_name] = PointerProperty(
+            type=m.settings_class
+        )
+    _groups[:] = [m.settings_name for m in with_settings]
+    classes = (
+        MaterialDeformAnchor,
+        *(m.settings_class for m in with_settings),
+        MaterialDeformSettings,
+    )
+    for cls in classes:
+        bpy.utils.register_class(cls)
     bpy.types.Object.material_deform = PointerProperty(type=MaterialDeformSettings)
 
 
 def unregister():
     del bpy.types.Object.material_deform
-    _unregister_classes()
+    for cls in reversed(classes):
+        bpy.utils.unregister_class(cls)
+    for name in _groups:
+        del MaterialDeformSettings.__annotations__[name]
+    _groups.clear()

@@ -251,7 +251,7 @@ class VIEW3D_PT_material_deform_deform(_MeshSubpanel, bpy.types.Panel):
         method = _method(col, obj)
         if method is not None:
             col.separator()
-            method.draw(col.column(), obj)
+            method.draw(col.column(), obj, session.cached_entry(obj))
 
 
 class VIEW3D_PT_material_deform_bake(_MeshSubpanel, bpy.types.Panel):
@@ -307,6 +307,7 @@ class VIEW3D_MT_material_deform(bpy.types.Menu):
         layout.operator("object.material_deform_bake_point_cache")
         layout.operator("object.material_deform_bake")
         layout.operator("object.material_deform_clear_bake")
+        layout.operator("object.material_deform_farm_job", text="Write Farm Bake Job...")
 
 
 def draw_object_menu(self, _context):

@@ -44,17 +44,20 @@ void bind_deformer(py::module_& m) {
       .def(
           "deform",
           [](const MaterialDeformer& self, const py_convert::DoubleArray& transforms,
-             std::optional<Vertices> pinned_positions) {
+             std::optional<Vertices> pinned_positions, std::optional<Vectors3> rotation_vectors) {
             bool affine = false;
             const std::vector<Eigen::Matrix4d> T = anchor_transforms(transforms, &affine);
             py::gil_scoped_release release;
-            return self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr);
+            return self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr,
+                               rotation_vectors ? &*rotation_vectors : nullptr);
           },
-          py::arg("transforms"), py::arg("pinned_positions") = py::none())
+          py::arg("transforms"), py::arg("pinned_positions") = py::none(),
+          py::arg("rotation_vectors") = py::none())
       .def(
           "deform_into",
           [](const MaterialDeformer& self, const py_convert::DoubleArray& transforms,
-             std::optional<Vertices> pinned_positions, py::array out) {
+             std::optional<Vertices> pinned_positions, py::array out,
+             std::optional<Vectors3> rotation_vectors) {
             // Not array_t<float>: that would cast a wrong array into a copy and write there.
             if (!py::isinstance<py::array_t<float>>(out) || out.ndim() != 2 ||
                 out.shape(0) != self.num_vertices() || out.shape(1) != 3 ||
@@ -66,9 +69,11 @@ void bind_deformer(py::module_& m) {
             const std::vector<Eigen::Matrix4d> T = anchor_transforms(transforms, &affine);
             float* dst = static_cast<float*>(out.mutable_data());
             py::gil_scoped_release release;
-            self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr, dst);
+            self.deform(T, affine, pinned_positions ? &*pinned_positions : nullptr, dst,
+                        rotation_vectors ? &*rotation_vectors : nullptr);
           },
-          py::arg("transforms"), py::arg("pinned_positions"), py::arg("out"))
+          py::arg("transforms"), py::arg("pinned_positions"), py::arg("out"),
+          py::arg("rotation_vectors") = py::none())
       .def_property_readonly("weights", &MaterialDeformer::weights)
       .def("axis_weights", &MaterialDeformer::axis_weights, py::arg("axis"))
       .def_property_readonly("anisotropic", &MaterialDeformer::anisotropic)

@@ -88,10 +88,18 @@ void bind_pose_space_deformer(py::module_& m) {
           },
           py::arg("handle_positions"), py::arg("rotations") = py::none(),
           py::arg("frame_transform") = py::none())
-      .def_property_readonly("example_weights", &PoseSpaceDeformer::example_weights)
+      // Without the GIL while waiting: another thread's deform() holds the deformer's lock.
+      .def_property_readonly("example_weights",
+                             [](const PoseSpaceDeformer& self) {
+                               py::gil_scoped_release release;
+                               return self.example_weights();
+                             })
       .def_property_readonly("last_stats",
                              [](const PoseSpaceDeformer& self) {
-                               const PoseSpaceStats& s = self.last_stats();
+                               const PoseSpaceStats s = [&] {
+                                 py::gil_scoped_release release;
+                                 return self.last_stats();
+                               }();
                                py::dict d;
                                d["iterations_first"] = s.iterations_first;
                                d["iterations_second"] = s.iterations_second;

@@ -5,6 +5,7 @@ namespace py = pybind11;
 using namespace matdeform;
 
 void bind_transforms(py::module_& m) {
+  m.attr("ROTATION_VECTOR_TOLERANCE") = kRotationVectorTolerance;
   m.def(
       "transform_log",
       [](const Eigen::Matrix3d& M) {
@@ -22,6 +23,25 @@ void bind_transforms(py::module_& m) {
         return Eigen::Matrix3d(transform_exp(L));
       },
       py::arg("log_stretch"), py::arg("rotation"));
+  m.def(
+      "unwrap_rotations",
+      [](const py_convert::DoubleArray& rotations, int k, std::optional<Vectors3> start) {
+        // rotations: (N*k,3,3), frame-major; start: (k,3) or None. Returns (N*k,3).
+        const Matrix3Array R = py_convert::to_matrices3(rotations);
+        std::vector<Eigen::Vector3d> s;
+        if (start) {
+          for (Eigen::Index a = 0; a < start->rows(); ++a) s.emplace_back(start->row(a));
+        }
+        std::vector<Eigen::Vector3d> v;
+        {
+          py::gil_scoped_release release;
+          v = unwrap_rotations(R, k, s);
+        }
+        Vectors3 out(static_cast<Eigen::Index>(v.size()), 3);
+        for (size_t i = 0; i < v.size(); ++i) out.row(static_cast<Eigen::Index>(i)) = v[i];
+        return out;
+      },
+      py::arg("rotations"), py::arg("k"), py::arg("start") = py::none());
   m.def(
       "polar_decompose",
       [](const Eigen::Matrix3d& M) {

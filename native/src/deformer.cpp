@@ -3,6 +3,7 @@
 #include <Eigen/LU>
 #include <algorithm>
 #include <cmath>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 
@@ -20,6 +21,32 @@ std::vector<int> sorted_unique(std::vector<int> v) {
   std::sort(v.begin(), v.end());
   v.erase(std::unique(v.begin(), v.end()), v.end());
   return v;
+}
+
+// The caller's branch of each anchor's rotation log (Eq. 2 blends them as given), after checking
+// that each is a log of that anchor's rotation factor, i.e. exp(v_a) = R_a.
+void use_rotation_vectors(const Vectors3& v, std::vector<TransformLog>* logs) {
+  const size_t k = logs->size();
+  if (static_cast<size_t>(v.rows()) != k) {
+    throw std::invalid_argument("rotation_vectors: expected shape (" + std::to_string(k) +
+                                ",3), one per anchor, got " + std::to_string(v.rows()) + " rows");
+  }
+  for (size_t a = 0; a < k; ++a) {
+    const Eigen::Vector3d va = v.row(static_cast<Eigen::Index>(a)).transpose();
+    const std::string name = "rotation_vectors[" + std::to_string(a) + "]";
+    if (!va.allFinite()) throw std::invalid_argument(name + ": contains NaN or infinity");
+    const double err = rotation_vector_mismatch(va, rotation_exp((*logs)[a].rotation));
+    if (!(err <= kRotationVectorTolerance)) {
+      std::ostringstream msg;
+      msg << name << ": its exp differs from the rotation of transforms[" << a << "] by " << err
+          << " rad (tolerance " << kRotationVectorTolerance
+          << "); expected a log of that rotation, i.e. its principal log plus whole turns about "
+             "the same axis";
+      if (std::isnan(err)) msg << " (this vector, " << va.norm() << " rad, is too long)";
+      throw std::invalid_argument(msg.str());
+    }
+  }
+  for (size_t a = 0; a < k; ++a) (*logs)[a].rotation = v.row(static_cast<Eigen::Index>(a));
 }
 }  // namespace
 
@@ -158,6 +185,24 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
   }
   av_offsets_.push_back(static_cast<int>(va.size()));
 
+  // Parts (vertices joined by region faces) with no anchor face and no pinned vertex stay at
+  // rest bit for bit: fixed there rather than solved to rest up to round-off.
+  {
+    const int ns = static_cast<int>(sub_vertices_.size());
+    DisjointSets parts(ns);
+    for (int f = 0; f < ms; ++f) {
+      parts.unite(sub_faces_(f, 0), sub_faces_(f, 1));
+      parts.unite(sub_faces_(f, 0), sub_faces_(f, 2));
+    }
+    std::vector<char> controlled(ns, 0);
+    for (int v : anchor_vertices_) controlled[parts.find(v)] = 1;
+    if (pinned_)
+      for (int v : *pinned_) controlled[parts.find(v)] = 1;
+    for (int v = 0; v < ns; ++v) {
+      if (!controlled[parts.find(v)] && !std::binary_search(boundary_.begin(), boundary_.end(), v))
+        still_.push_back(v);
+    }
+  }
   follow_ = std::make_unique<PoissonRepositioner>(sub_rest_, sub_faces_, shear_,
                                                   fixed_set(pinned_ ? *pinned_ : anchor_vertices_));
   for (int v : follow_->fixed()) {
@@ -175,13 +220,15 @@ MaterialDeformer::MaterialDeformer(const Vertices& vertices, const Faces& faces,
 MaterialDeformer::~MaterialDeformer() = default;
 
 std::vector<int> MaterialDeformer::fixed_set(const std::vector<int>& primary) const {
-  // Primary vertices first (in the caller's order), then region boundary vertices at rest.
-  // A boundary vertex is never also primary: the region edge must stay attached to the rest.
+  // Primary vertices first (in the caller's order), then region boundary vertices and parts
+  // without control, at rest. A boundary vertex is never also primary: the region edge must
+  // stay attached to the rest.
   std::vector<int> out;
   for (int v : primary) {
     if (!std::binary_search(boundary_.begin(), boundary_.end(), v)) out.push_back(v);
   }
   out.insert(out.end(), boundary_.begin(), boundary_.end());
+  out.insert(out.end(), still_.begin(), still_.end());
   return out;
 }
 
@@ -225,7 +272,7 @@ Matrix3Array MaterialDeformer::face_transforms() const {
 
 void MaterialDeformer::solve_region(const std::vector<Eigen::Matrix4d>& transforms,
                                     bool has_translation, const Vertices* pinned_positions,
-                                    Vertices* sub_out) const {
+                                    const Vectors3* rotation_vectors, Vertices* sub_out) const {
   const size_t k = anchors_.size();
   if (transforms.size() != k) {
     throw std::invalid_argument("transforms: expected " + std::to_string(k) + " transforms, got " +
@@ -243,6 +290,7 @@ void MaterialDeformer::solve_region(const std::vector<Eigen::Matrix4d>& transfor
                                   "] has a non-finite translation");
     }
   }
+  if (rotation_vectors) use_rotation_vectors(*rotation_vectors, &logs);
   const PoissonRepositioner& rep = repositioner(has_translation);
   const std::vector<int>& fixed = rep.fixed();
   Vertices fixed_pos(static_cast<Eigen::Index>(fixed.size()), 3);
@@ -292,11 +340,12 @@ void MaterialDeformer::solve_region(const std::vector<Eigen::Matrix4d>& transfor
 }
 
 Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms,
-                                  bool has_translation, const Vertices* pinned_positions) const {
+                                  bool has_translation, const Vertices* pinned_positions,
+                                  const Vectors3* rotation_vectors) const {
   const std::lock_guard<std::mutex> lock(mutex_);
   const ParkWorkersOnExit park;  // the solve's helper threads sleep as soon as it is done
   Vertices sub_out;
-  solve_region(transforms, has_translation, pinned_positions, &sub_out);
+  solve_region(transforms, has_translation, pinned_positions, rotation_vectors, &sub_out);
   if (sub_vertices_.size() == static_cast<size_t>(rest_.rows())) return sub_out;
   Vertices out = rest_;
   for (size_t s = 0; s < sub_vertices_.size(); ++s) {
@@ -306,10 +355,11 @@ Vertices MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms
 }
 
 void MaterialDeformer::deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-                              const Vertices* pinned_positions, float* out) const {
+                              const Vertices* pinned_positions, float* out,
+                              const Vectors3* rotation_vectors) const {
   const std::lock_guard<std::mutex> lock(mutex_);
   const ParkWorkersOnExit park;
-  solve_region(transforms, has_translation, pinned_positions, &work_out_);
+  solve_region(transforms, has_translation, pinned_positions, rotation_vectors, &work_out_);
   const int n = static_cast<int>(rest_.rows());
   const bool whole = sub_vertices_.size() == static_cast<size_t>(n);
   // Rounded on the solve's threads: the caller's next step (a float32 key) reads it at once.

@@ -12,6 +12,7 @@
 
 #include "matdeform/mesh.hpp"
 #include "matdeform/threads.hpp"
+#include "matdeform/transforms.hpp"
 #include "simd.hpp"
 #include "sparse_cholesky.hpp"
 #include "task_pool.hpp"
@@ -21,6 +22,21 @@ namespace matdeform {
 namespace {
 
 using V3 = Eigen::Vector3d;
+
+// Positions (constraints, starts, results) may lie at most this many rest diagonals from the
+// rest mesh's centre: squared lengths and the kernels' products of four lengths stay finite
+// (the mesh itself is at most 1e50 across, validate_mesh), and a result beyond it has lost
+// every digit of the mesh's shape anyway.
+constexpr double kMaxReach = 1e50;
+// Per-edge stiffness (stretch or bend times edge_weight times kappa) at most this: the
+// normal-equation entries, sums of a few dozen of them, stay finite.
+constexpr double kMaxStiffness = 1e300;
+
+// Anchor turns (from the start to the constrained positions) up to which the first estimation
+// step takes the start's own edge frames; beyond, it carries them by the anchors' rotations
+// (EdgeDeformer::solve). Below it the plain step's linear error, ~(1 - cos) of the turn, is
+// under 3.5 % and carrying costs more than it saves (a live drag turns ~1 degree per update).
+constexpr double kCarryMinAngle = 15.0 * 3.14159265358979323846 / 180.0;
 
 // Rest data of one edge as the per-iteration kernels read it. Vertex fields are slots (rows of
 // the position buffers, see Impl); l < 0 means the edge has no sigma term. Stiffness is folded
@@ -96,6 +112,7 @@ struct EstimateArgs {
   const EdgeGroup* groups;
   const Vec4d* P;  // positions by slot
   double p_rho, p_sig;
+  const Vec4d* carry;  // carried estimation only: unit quaternion (x, y, z, w) by slot
 };
 
 // Four (x, y, z, pad) rows -> x, y, z of the four.
@@ -128,6 +145,38 @@ MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
   return a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
 }
 
+// Four unit quaternions, an edge's (the normalised sum of its two vertices' quaternions, which
+// lie on the same side: they come from one continuous field), applied to vectors.
+struct Rot4 {
+  Vec4d x, y, z, w;
+  MD_ALWAYS_INLINE void apply(Vec4d* vx, Vec4d* vy, Vec4d* vz) const {
+    // v + 2 w (u x v) + 2 u x (u x v), u = (x, y, z)
+    const Vec4d cx = y * *vz - z * *vy, cy = z * *vx - x * *vz, cz = x * *vy - y * *vx;
+    const Vec4d dx = y * cz - z * cy, dy = z * cx - x * cz, dz = x * cy - y * cx;
+    *vx += 2.0 * (w * cx + dx);
+    *vy += 2.0 * (w * cy + dy);
+    *vz += 2.0 * (w * cz + dz);
+  }
+};
+
+MD_ALWAYS_INLINE Rot4 edge_rotations(const Vec4d* Q, const int* i, const int* j) {
+  const Vec4d a0 = Q[i[0]] + Q[j[0]], a1 = Q[i[1]] + Q[j[1]], a2 = Q[i[2]] + Q[j[2]],
+              a3 = Q[i[3]] + Q[j[3]];
+  const Vec4d t0 = MD_UNPACK_EVEN(a0, a1), t1 = MD_UNPACK_ODD(a0, a1);
+  const Vec4d t2 = MD_UNPACK_EVEN(a2, a3), t3 = MD_UNPACK_ODD(a2, a3);
+  Rot4 q{MD_LOW_HALVES(t0, t2), MD_LOW_HALVES(t1, t3), MD_HIGH_HALVES(t0, t2),
+         MD_HIGH_HALVES(t1, t3)};
+  const Vec4d one = {1, 1, 1, 1};
+  Vec4d len;
+  sqrt4(q.x * q.x + q.y * q.y + q.z * q.z + q.w * q.w, &len);
+  const Vec4d inv = one / len;  // the sum of two unit quaternions at < 180 degrees is not 0
+  q.x *= inv;
+  q.y *= inv;
+  q.z *= inv;
+  q.w *= inv;
+  return q;
+}
+
 // Estimation step (Eq. 10 with Eq. 15): for each edge the targets
 //   rho* = (1 - p_rho) L_rho(V^k) + p_rho |rho_0| l^k,
 //   sigma* = (1 - p_sig) L_sig(V^k) + p_sig (s_l l^k + s_n n^k + s_b (l^k x n^k)),
@@ -135,8 +184,11 @@ MD_ALWAYS_INLINE double dot3(const Vec4d& a, const Vec4d& b) {
 // (x_j - x_i) x (x_i - x_l) + (x_i - x_j) x (x_m - x_j) = (x_j - x_i) x (x_l - x_m), the sum of
 // the two faces' area-weighted normals. A collapsed edge takes its rest direction; an edge
 // whose normal vanishes (faces folded onto each other) gets no bending pull this iteration.
+// Carried (the first iteration when the anchors turn, see EdgeDeformer::solve): the rest
+// parts (p_rho |rho_0| l^k, p_sig (...)) are turned further by the edge's rotation.
 // The targets go straight into the right-hand side of the measure step (Eq. 11), D^T c target
 // per edge, scattered into Y (rows by slot; rows of fixed vertices are scratch).
+template <bool kCarry>
 MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d* Y) {
   for (int g = gb; g < ge; ++g) {
     const EdgeGroup& t = a.groups[g];
@@ -156,9 +208,15 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d
     const Vec4d lx = MD_SELECT4(has_dir, dx * inv, MD_LD4(t.r0[0]));
     const Vec4d ly = MD_SELECT4(has_dir, dy * inv, MD_LD4(t.r0[1]));
     const Vec4d lz = MD_SELECT4(has_dir, dz * inv, MD_LD4(t.r0[2]));
+    [[maybe_unused]] Rot4 q{};
+    Vec4d lcx = lx, lcy = ly, lcz = lz;  // the rest direction of rho*, carried
+    if constexpr (kCarry) {
+      q = edge_rotations(a.carry, t.i, t.j);
+      q.apply(&lcx, &lcy, &lcz);
+    }
     const Vec4d cr = MD_LD4(t.c_rho);
     const Vec4d k1 = cr * (1.0 - a.p_rho), k2 = cr * rl * a.p_rho;
-    const Vec4d tx = k1 * dx + k2 * lx, ty = k1 * dy + k2 * ly, tz = k1 * dz + k2 * lz;
+    const Vec4d tx = k1 * dx + k2 * lcx, ty = k1 * dy + k2 * lcy, tz = k1 * dz + k2 * lcz;
 
     const Vec4d al = MD_LD4(t.alpha), be = MD_LD4(t.beta);
     const Vec4d sx = al * xi + (one - al) * xj - be * xl - (one - be) * xm;
@@ -175,9 +233,12 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d
     const Vec4d bx = ly * nz - lz * ny, by = lz * nx - lx * nz, bz = lx * ny - ly * nx;
     const Vec4d cs = MD_LD4(t.c_sig), sl = MD_LD4(t.s_l), sn = MD_LD4(t.s_n), sb = MD_LD4(t.s_b);
     const Vec4d k3 = cs * (1.0 - a.p_sig);
-    const Vec4d rx = MD_SELECT4(good, sl * lx + sn * nx + sb * bx, cs * sx);
-    const Vec4d ry = MD_SELECT4(good, sl * ly + sn * ny + sb * by, cs * sy);
-    const Vec4d rz = MD_SELECT4(good, sl * lz + sn * nz + sb * bz, cs * sz);
+    Vec4d ex = sl * lx + sn * nx + sb * bx, ey = sl * ly + sn * ny + sb * by,
+          ez = sl * lz + sn * nz + sb * bz;
+    if constexpr (kCarry) q.apply(&ex, &ey, &ez);
+    const Vec4d rx = MD_SELECT4(good, ex, cs * sx);
+    const Vec4d ry = MD_SELECT4(good, ey, cs * sy);
+    const Vec4d rz = MD_SELECT4(good, ez, cs * sz);
     const Vec4d ux = k3 * sx + a.p_sig * rx, uy = k3 * sy + a.p_sig * ry,
                 uz = k3 * sz + a.p_sig * rz;
     // D_rho^T t = (t, -t) on (i, j); D_sig^T u = (alpha, 1 - alpha, -beta, beta - 1) u.
@@ -188,9 +249,17 @@ MD_ALWAYS_INLINE void estimate_body(const EstimateArgs& a, int gb, int ge, Vec4d
     add_aos(bm * ux, bm * uy, bm * uz, t.m, Y);
   }
 }
-void estimate_base(const EstimateArgs& a, int b, int e, Vec4d* Y) { estimate_body(a, b, e, Y); }
+void estimate_base(const EstimateArgs& a, int b, int e, Vec4d* Y) {
+  estimate_body<false>(a, b, e, Y);
+}
 MD_TARGET_AVX2 void estimate_avx2(const EstimateArgs& a, int b, int e, Vec4d* Y) {
-  estimate_body(a, b, e, Y);
+  estimate_body<false>(a, b, e, Y);
+}
+void estimate_carry_base(const EstimateArgs& a, int b, int e, Vec4d* Y) {
+  estimate_body<true>(a, b, e, Y);
+}
+MD_TARGET_AVX2 void estimate_carry_avx2(const EstimateArgs& a, int b, int e, Vec4d* Y) {
+  estimate_body<true>(a, b, e, Y);
 }
 
 }  // namespace
@@ -214,7 +283,81 @@ struct EdgeDeformer::Impl {
   std::vector<std::vector<double>> acc;
   std::vector<double> part_move;  // per part: largest squared move of an iteration
   std::mutex busy;  // solve() calls from several threads (the GIL is released) take turns
+
+  // Anchors: the constrained vertices split into parts connected by mesh edges (CSR over
+  // constrained indices, caller order). Each is fitted with a rotation in solve().
+  std::vector<int> anchor_ptr, anchor_idx;
+  std::vector<double> carry;  // 4 per slot: rotation quaternion of the carried estimation
+  V3 centre = V3::Zero();     // of the rest bounding box
+
+  // Largest coordinate distance of rows of X from the rest centre, in rest diagonals.
+  double reach(const Vertices& X, double diag) const {
+    double r = 0.0;
+    for (Eigen::Index v = 0; v < X.rows(); ++v)
+      for (int k = 0; k < 3; ++k) r = std::max(r, std::abs(X(v, k) - centre(k)));
+    return r / diag;
+  }
+
+  bool carry_rotations(const Vec4d* from, const Vec4d* to);
 };
+
+// The start when the anchors turn (see EdgeDeformer::solve): a rotation per anchor, the best
+// fit of its vertices from -> to (slots nf + c), spread over the free vertices by the system's
+// own response A_ff r_f = -A_fc r_c (rotation vectors r; vertices of anchors without a fit and
+// passive vertices hold 0), then turned into quaternions by slot in `carry`. False (carry
+// untouched) when no anchor turns by more than kCarryMinAngle.
+bool EdgeDeformer::Impl::carry_rotations(const Vec4d* from, const Vec4d* to) {
+  const int na = static_cast<int>(anchor_ptr.size()) - 1;
+  std::vector<V3> rot(na, V3::Zero());
+  double largest = 0.0;
+  for (int g = 0; g < na; ++g) {
+    const int b = anchor_ptr[g], e = anchor_ptr[g + 1];
+    V3 cf = V3::Zero(), ct = V3::Zero();
+    for (int q = b; q < e; ++q) {
+      const Vec4d& x = from[nf + anchor_idx[q]];
+      const Vec4d& y = to[nf + anchor_idx[q]];
+      cf += V3(x[0], x[1], x[2]);
+      ct += V3(y[0], y[1], y[2]);
+    }
+    cf /= e - b;
+    ct /= e - b;
+    Eigen::Matrix3d H = Eigen::Matrix3d::Zero();
+    for (int q = b; q < e; ++q) {
+      const Vec4d& x = from[nf + anchor_idx[q]];
+      const Vec4d& y = to[nf + anchor_idx[q]];
+      H += (V3(y[0], y[1], y[2]) - ct) * (V3(x[0], x[1], x[2]) - cf).transpose();
+    }
+    Eigen::Matrix3d R;
+    double trace;
+    // No fit for fewer than three points, points in a line, or a collapsed target: no turn.
+    if (e - b >= 3 && fit_rotation(H, &R, &trace)) rot[g] = rotation_log(R);
+    largest = std::max(largest, rot[g].norm());
+  }
+  if (!(largest > kCarryMinAngle) || nf == 0) return false;
+
+  carry.assign(4 * (static_cast<size_t>(nf) + nfix), 0.0);
+  Vec4d* Q = reinterpret_cast<Vec4d*>(carry.data());
+  for (int g = 0; g < na; ++g) {
+    for (int q = anchor_ptr[g]; q < anchor_ptr[g + 1]; ++q) {
+      Q[nf + anchor_idx[q]] = Vec4d{rot[g](0), rot[g](1), rot[g](2), 0.0};
+    }
+  }
+  for (int r = 0; r < nf; ++r) {
+    Vec4d b = {0, 0, 0, 0};
+    for (int q = c_ptr[r]; q < c_ptr[r + 1]; ++q) b -= c_val[q] * Q[nf + c_col[q]];
+    b[3] = 0.0;
+    Q[r] = b;
+  }
+  chol->solve_permuted4(carry.data());
+  for (size_t s = 0; s < static_cast<size_t>(nf) + nfix; ++s) {
+    const V3 r(Q[s][0], Q[s][1], Q[s][2]);
+    const double angle = r.norm();
+    const Eigen::Quaterniond u(angle > 0.0 ? Eigen::AngleAxisd(angle, r / angle)
+                                           : Eigen::AngleAxisd::Identity());
+    Q[s] = Vec4d{u.x(), u.y(), u.z(), u.w()};
+  }
+  return true;
+}
 
 EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
                            const std::vector<int>& constrained, const EdgeDeformerOptions& options)
@@ -266,6 +409,7 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
   const V3 lo = vertices.colwise().minCoeff(), hi = vertices.colwise().maxCoeff();
   diag_ = n > 0 ? (hi - lo).norm() : 0.0;
   if (!(diag_ > 0.0)) diag_ = 1.0;
+  d.centre = n > 0 ? V3(0.5 * (lo + hi)) : V3::Zero();
 
   // Interior manifold edges: exactly one face pair shares them.
   auto edge_index = [&](int a, int b) {
@@ -388,6 +532,11 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
     for (int k = 0; k < 3; ++k) all_dir[3 * static_cast<size_t>(e) + k] = dir(k);
     t.c_rho = options.stretch * w * kappa_(e);
     t.rest_len = rl;
+    if (!(t.c_rho <= kMaxStiffness && t.c_sig <= kMaxStiffness)) {
+      throw std::invalid_argument(
+          "stretch, bend, edge_weight: their products exceed 1e300 (only their ratios matter: "
+          "scale them down)");
+    }
   }
 
   // Passive vertices: in no face, or in a part (through edges) without a constrained vertex.
@@ -405,6 +554,33 @@ EdgeDeformer::EdgeDeformer(const Vertices& vertices, const Faces& faces,
       is_fixed[v] = 1;
       fixed_list.push_back(v);
     }
+  }
+  // Anchors: constrained vertices joined by mesh edges.
+  {
+    DisjointSets anchors(n);
+    std::vector<char> is_con(n, 0);
+    for (int v : constrained) is_con[v] = 1;
+    for (int e = 0; e < E; ++e) {
+      const int a = edges_(e, 0), b = edges_(e, 1);
+      if (is_con[a] && is_con[b]) anchors.unite(a, b);
+    }
+    std::vector<int> label(n, -1), count;
+    std::vector<int> of(constrained.size());
+    for (size_t c = 0; c < constrained.size(); ++c) {
+      int& l = label[anchors.find(constrained[c])];
+      if (l < 0) {
+        l = static_cast<int>(count.size());
+        count.push_back(0);
+      }
+      of[c] = l;
+      ++count[l];
+    }
+    d.anchor_ptr.assign(count.size() + 1, 0);
+    for (size_t g = 0; g < count.size(); ++g) d.anchor_ptr[g + 1] = d.anchor_ptr[g] + count[g];
+    d.anchor_idx.resize(constrained.size());
+    std::vector<int> fill(d.anchor_ptr.begin(), d.anchor_ptr.end() - 1);
+    for (size_t c = 0; c < constrained.size(); ++c)
+      d.anchor_idx[fill[of[c]]++] = static_cast<int>(c);
   }
   std::vector<int> free_index(n, -1), free_verts;
   for (int v = 0; v < n; ++v) {
@@ -598,6 +774,15 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   }
   if (!options.gravity.allFinite())
     throw std::invalid_argument("gravity: contains NaN or infinity");
+  const char* far =
+      " lies beyond 1e50 mesh sizes of the rest mesh: rescale the mesh (only its "
+      "shape matters)";
+  if (!(d.reach(constrained_positions, diag_) <= kMaxReach)) {
+    throw std::invalid_argument(std::string("constrained_positions:") + far);
+  }
+  if (initial && !(d.reach(*initial, diag_) <= kMaxReach)) {
+    throw std::invalid_argument(std::string("initial:") + far);
+  }
 
   const std::lock_guard<std::mutex> lock(d.busy);
   const ParkWorkersOnExit park;
@@ -609,7 +794,9 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   for (int v = 0; v < d.n; ++v) {
     cur[d.slot[v]] = Vec4d{X0(v, 0), X0(v, 1), X0(v, 2), 0.0};
   }
-  double move0 = 0.0;  // constrained vertices jump to their targets in the first iteration
+  // In the first iteration constrained vertices jump to their targets and passive ones (parts
+  // without a constrained vertex, loose vertices) to rest, where they stay bit for bit.
+  double move0 = 0.0;
   for (int c = 0; c < d.nc; ++c) {
     const Vec4d p = {constrained_positions(c, 0), constrained_positions(c, 1),
                      constrained_positions(c, 2), 0.0};
@@ -617,7 +804,14 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     const Vec4d dv = p - cur[nf + c];
     move0 = std::max(move0, dot3(dv, dv));
   }
-  for (int s = nf + d.nc; s < nf + d.nfix; ++s) next[s] = cur[s];
+  const bool anchors_moved = move0 > 0.0;
+  for (int s = nf + d.nc; s < nf + d.nfix; ++s) {
+    const int v = d.slot_vertex[s];
+    const Vec4d r = {d.rest(v, 0), d.rest(v, 1), d.rest(v, 2), 0.0};
+    const Vec4d dv = r - cur[s];
+    move0 = std::max(move0, dot3(dv, dv));
+    cur[s] = next[s] = r;
+  }
 
   // Constant part of the right-hand side: -A_fc x_fixed + g/2 (Eq. 9 with E_g = -sum <g, v>).
   const Vec4d g2 = {0.5 * options.gravity(0), 0.5 * options.gravity(1), 0.5 * options.gravity(2),
@@ -629,6 +823,13 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     b0[r] = b;
   }
 
+  // The first estimation step takes its edge frames from the start V^0, which knows nothing of
+  // the anchors' turn; its measure step, being linear, can only shear a turn into the mesh, and
+  // past ~90 degrees that sends parts through each other (a tube's rings through its axis, a
+  // half turn the wrong way that no later iteration undoes). So when the anchors turn, the
+  // first estimation step also turns each edge's rest quantities by the anchors' rotations
+  // spread over the mesh (Impl::carry_rotations).
+  const bool carried = anchors_moved && d.carry_rotations(cur, next);
   const bool avx2 = cpu_has_avx2_fma();
   const int ng = static_cast<int>(d.groups.size());
   // Parallel parts of the estimation step, each scattering into its own accumulator. Below
@@ -644,7 +845,9 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   int it = 0;
   double move = 0.0;
   while (it < options.iterations) {
-    const EstimateArgs ea{d.groups.data(), cur, options.p_stretch, options.p_bend};
+    const bool carry = carried && it == 0;
+    const EstimateArgs ea{d.groups.data(), cur, options.p_stretch, options.p_bend,
+                          carry ? reinterpret_cast<const Vec4d*>(d.carry.data()) : nullptr};
     run_tasks(parts, [&](int p) {
       Vec4d* acc = reinterpret_cast<Vec4d*>(d.acc[p].data());
       if (p == 0) {
@@ -654,7 +857,11 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
       }
       const int b = static_cast<int>(static_cast<int64_t>(ng) * p / parts);
       const int e = static_cast<int>(static_cast<int64_t>(ng) * (p + 1) / parts);
-      (avx2 ? estimate_avx2 : estimate_base)(ea, b, e, acc);
+      if (carry) {
+        (avx2 ? estimate_carry_avx2 : estimate_carry_base)(ea, b, e, acc);
+      } else {
+        (avx2 ? estimate_avx2 : estimate_base)(ea, b, e, acc);
+      }
     });
     if (parts > 1) {
       parallel_ranges(nf, 4096, 8, [&](int b, int e) {
@@ -667,7 +874,9 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     d.chol->solve_permuted4(reinterpret_cast<double*>(Y));
     // The move and the next iterate, in the estimation step's parts (a serial loop over 30k
     // rows left the second thread idle for ~3 % of an iteration).
-    const double w = options.relaxation;
+    // A carried first step is the start, taken in full: relaxation damps the iteration's
+    // two-cycles, and blending this step with V^0 would shear the turn back in.
+    const double w = carry ? 1.0 : options.relaxation;
     run_tasks(parts, [&](int p) {
       const int b = static_cast<int>(static_cast<int64_t>(nf) * p / parts);
       const int e = static_cast<int>(static_cast<int64_t>(nf) * (p + 1) / parts);
@@ -690,14 +899,19 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     ++it;
     if (move < stop) break;
   }
-  last_iterations_ = it;
-  last_move_ = move / diag_;
-
   Vertices out(d.n, 3);
   for (int v = 0; v < d.n; ++v) {
     const Vec4d& p = cur[d.slot[v]];
     out.row(v) << p[0], p[1], p[2];
   }
+  // E.g. gravity far too strong for the stiffness: refused, and the call changes nothing.
+  if (!(std::isfinite(move) && d.reach(out, diag_) <= kMaxReach)) {
+    throw std::runtime_error(
+        "the iteration left the range the solver represents (1e50 mesh sizes around the rest "
+        "mesh): rescale the mesh, or weaken gravity");
+  }
+  last_iterations_ = it;
+  last_move_ = move / diag_;
   return out;
 }
 

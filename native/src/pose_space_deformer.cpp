@@ -11,8 +11,10 @@
 #include <cmath>
 #include <functional>
 #include <map>
+#include <mutex>
 #include <numeric>
 #include <queue>
+#include <sstream>
 #include <stdexcept>
 #include <string>
 #include <tuple>
@@ -39,6 +41,15 @@ constexpr double kPi = 3.14159265358979323846;
 // on one).
 constexpr int kParallelMin = 16384;
 constexpr int kTasks = 8;
+// Positions (examples, handle targets, the frame) lie within this many bounding-box diagonals
+// of the rest mesh's centre. Then every product the solve forms (squared lengths of pose
+// vectors, cross products of target edges, the Kabsch cross-covariance) stays below ~1e200;
+// far beyond, they overflow to inf and NaN (handles scaled by 1e155 did).
+constexpr double kMaxReach = 1e50;
+// Within that reach a non-finite result is a defect, but it is never returned.
+constexpr const char* kOverflow =
+    "handle_positions: the solve overflowed (a non-finite value); rescale the mesh and the "
+    "positions (only shapes matter)";
 
 double ms_since(Clock::time_point t0) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
@@ -48,6 +59,12 @@ double ms_since(Clock::time_point t0) {
 
 std::string item(const char* name, size_t i) {
   return std::string(name) + "[" + std::to_string(i) + "]";
+}
+
+std::string number(double x) {
+  std::ostringstream s;
+  s << x;
+  return s.str();
 }
 
 // Nearest proper rotation in the Frobenius norm (the rotation factor of the polar
@@ -144,20 +161,42 @@ inline void pack_sym(const Mat3& S, double* o) {
   o[5] = 0.5 * (S(1, 2) + S(2, 1));
 }
 
+bool lex_less(const Vec3& a, const Vec3& b) {
+  return std::lexicographical_compare(a.data(), a.data() + 3, b.data(), b.data() + 3);
+}
+
+// Centroid of a triangle summed in lexicographic order of its corners, so the same bits for any
+// corner order (a root chosen by distance must not depend on the numbering, even in ties).
+Vec3 centroid(const Vertices& V, int a, int b, int c) {
+  std::array<Vec3, 3> p = {V.row(a).transpose(), V.row(b).transpose(), V.row(c).transpose()};
+  std::sort(p.begin(), p.end(), lex_less);
+  return (p[0] + p[1] + p[2]) / 3.0;
+}
+
+// Mean of the rows `ids` of V, summed in lexicographic order of the points (the same bits for
+// any numbering).
+Vec3 canonical_mean(const Vertices& V, std::vector<int> ids) {
+  std::sort(ids.begin(), ids.end(),
+            [&](int a, int b) { return lex_less(V.row(a).transpose(), V.row(b).transpose()); });
+  Vec3 sum = Vec3::Zero();
+  for (int i : ids) sum += V.row(i).transpose();
+  return sum / static_cast<double>(std::max<size_t>(ids.size(), 1));
+}
+
 // The face whose rest centroid is nearest to `point` (ties: lexicographic centroid), a choice
-// that does not depend on the numbering of faces or vertices.
-int nearest_face(const Vertices& V, const Faces& F, const Vec3& point) {
+// that does not depend on the numbering of faces or vertices. Among the faces in `candidates`
+// (-1 when it is empty).
+int nearest_face(const Vertices& V, const Faces& F, const Vec3& point,
+                 const std::vector<int>& candidates) {
   int best = -1;
   double bd = 0.0;
   Vec3 bc = Vec3::Zero();
-  for (Eigen::Index f = 0; f < F.rows(); ++f) {
-    const Vec3 c = (V.row(F(f, 0)) + V.row(F(f, 1)) + V.row(F(f, 2))).transpose() / 3.0;
+  for (const int f : candidates) {
+    const Vec3 c = centroid(V, F(f, 0), F(f, 1), F(f, 2));
     const double d = (c - point).squaredNorm();
-    const bool better =
-        best < 0 || d < bd ||
-        (d == bd && std::lexicographical_compare(c.data(), c.data() + 3, bc.data(), bc.data() + 3));
+    const bool better = best < 0 || d < bd || (d == bd && lex_less(c, bc));
     if (better) {
-      best = static_cast<int>(f);
+      best = f;
       bd = d;
       bc = c;
     }
@@ -199,23 +238,34 @@ class Interpolator {
     // sum a = 0, so the smoothing ridge is subtracted. It pulls the weights at the examples
     // towards mixtures and keeps the partition of unity.
     S.topLeftCorner(p, p).diagonal().array() -= regularization * big;
-    S.topRightCorner(p, 1).setOnes();
-    S.bottomLeftCorner(1, p).setOnes();
+    // The constant's column scaled like Phi (b = big * c): poses far apart (an example 1e40
+    // times the others) otherwise leave a pivot below the rank threshold.
+    S.topRightCorner(p, 1).setConstant(big);
+    S.bottomLeftCorner(1, p).setConstant(big);
     Eigen::MatrixXd rhs = Eigen::MatrixXd::Zero(p + 1, p);
     rhs.topRows(p).setIdentity();
     Eigen::FullPivLU<Eigen::MatrixXd> lu(S);
     if (!lu.isInvertible()) fail("examples: the pose interpolation system is singular");
     const Eigen::MatrixXd sol = lu.solve(rhs);
     A_ = sol.topRows(p);
-    b_ = sol.row(p).transpose();
+    b_ = big * sol.row(p).transpose();
   }
 
   Eigen::VectorXd operator()(const Eigen::VectorXd& x) const {
     const Eigen::Index p = centers_.rows();
     if (p == 0) return Eigen::VectorXd();
     if (p == 1) return Eigen::VectorXd::Ones(1);
+    // A's columns sum to 0, so phi may be shifted by |x - P_0|. The shifted values are formed
+    // without cancellation, |x - P_l| - |x - P_0| = (P_0 - P_l).(2x - P_l - P_0) / (sum), so
+    // far from the examples (|x| >> |P|) the weights keep their sum 1 and their limits.
+    const Eigen::VectorXd p0 = centers_.row(0).transpose();
+    const double phi0 = (x - p0).norm();
     Eigen::VectorXd phi(p);
-    for (Eigen::Index l = 0; l < p; ++l) phi(l) = (centers_.row(l).transpose() - x).norm();
+    for (Eigen::Index l = 0; l < p; ++l) {
+      const Eigen::VectorXd pl = centers_.row(l).transpose();
+      const double den = (x - pl).norm() + phi0;
+      phi(l) = den > 0.0 ? (p0 - pl).dot(2.0 * x - pl - p0) / den : 0.0;
+    }
     Eigen::VectorXd w = A_.transpose() * phi + b_;
     if (convex_) {
       w = w.cwiseMax(0.0);
@@ -244,10 +294,13 @@ class Interpolator {
 // preconditioner.
 class RotationSolver {
  public:
+  // tree_roots: where the gauge's spanning tree starts, every fixed face and one face in each
+  // rotation component without one (faces the tree does not reach keep the identity gauge).
   RotationSolver(int m, const IndexPairs& dual, const std::vector<std::array<int, 2>>& pairs,
-                 double pair_weight, const std::vector<int>& fixed, int root,
-                 const std::vector<int>& penalty_faces, double penalty_weight,
-                 const std::vector<double>& edge_cost, const std::vector<double>& edge_weight)
+                 double pair_weight, const std::vector<int>& fixed,
+                 const std::vector<int>& tree_roots, const std::vector<int>& penalty_faces,
+                 double penalty_weight, const std::vector<double>& edge_cost,
+                 const std::vector<double>& edge_weight)
       : m_(m), num_dual_(static_cast<int>(dual.rows())) {
     const int E = num_dual_, r = static_cast<int>(pairs.size());
     la_.resize(E + r);
@@ -303,7 +356,7 @@ class RotationSolver {
       M.setFromTriplets(trip.begin(), trip.end());
       chol_ = std::make_unique<SparseCholesky>(M, SparseCholesky::Reuse::PerPose);
     }
-    // Spanning tree of the gauge, grown from the fixed faces (or the root) by Prim's algorithm:
+    // Spanning tree of the gauge, grown from the tree roots by Prim's algorithm:
     // edges whose relative rotation is small in every example first (ties in breadth-first
     // order), so the few unreliable edges (strongly distorted faces) end up off the tree and
     // their inconsistency stays local.
@@ -322,9 +375,8 @@ class RotationSolver {
         if (!seen[g]) heap.emplace(edge_cost.empty() ? 0.0 : edge_cost[e], counter++, e);
       }
     };
-    const std::vector<int> roots = fixed.empty() ? std::vector<int>{root} : fixed;
-    for (int f : roots) seen[f] = 1;
-    for (int f : roots) push_edges(f);
+    for (int f : tree_roots) seen[f] = 1;
+    for (int f : tree_roots) push_edges(f);
     parent_link_.assign(m, -1);
     while (!heap.empty()) {
       const int e = std::get<2>(heap.top());
@@ -602,13 +654,25 @@ class PositionSolver {
     std::vector<double> beta;
   };
 
+  // part: the mesh part of each vertex (parts 0 .. max). A part that no fixed vertex and no row
+  // holds gets a translation gauge: its first vertex is fixed, and its rest mean is restored
+  // after the solve.
   PositionSolver(const Vertices& rest, const Faces& F, const GradientOperator& grad,
-                 std::vector<int> fixed, const std::vector<Row>& rows, double lambda)
+                 std::vector<int> fixed, const std::vector<Row>& rows, double lambda,
+                 const std::vector<int>& part)
       : rest_(rest), F_(F), grad_(grad), rows_(rows), lambda_(lambda) {
     const int n = static_cast<int>(rest.rows());
-    if (fixed.empty() && rows.empty()) {
-      fixed = {0};  // translation gauge; the mean is restored after the solve
-      gauge_ = true;
+    const int parts = n > 0 ? *std::max_element(part.begin(), part.end()) + 1 : 0;
+    std::vector<char> held(parts, 0);
+    for (int v : fixed) held[part[v]] = 1;
+    for (const Row& row : rows)
+      for (int v : row.idx) held[part[v]] = 1;
+    std::vector<std::vector<int>> members(parts);
+    for (int v = 0; v < n; ++v) members[part[v]].push_back(v);
+    for (int c = 0; c < parts; ++c) {
+      if (held[c] || members[c].empty()) continue;
+      fixed.push_back(members[c][0]);
+      gauge_.push_back(std::move(members[c]));
     }
     unknown_.assign(n, 0);
     for (int v : fixed) unknown_[v] = -1;
@@ -674,9 +738,10 @@ class PositionSolver {
     for (Eigen::Index v = 0; v < rest_.rows(); ++v) {
       if (unknown_[v] >= 0) out->row(v) = X.row(unknown_[v]);
     }
-    if (gauge_) {
-      const Eigen::RowVector3d shift = rest_.colwise().mean() - out->colwise().mean();
-      out->rowwise() += shift;
+    for (const std::vector<int>& vs : gauge_) {
+      const Eigen::RowVector3d shift =
+          gather_rows(rest_, vs).colwise().mean() - gather_rows(*out, vs).colwise().mean();
+      for (int v : vs) out->row(v) += shift;
     }
   }
 
@@ -688,7 +753,7 @@ class PositionSolver {
   double lambda_;
   std::vector<int> unknown_;
   int num_unknowns_ = 0;
-  bool gauge_ = false;
+  std::vector<std::vector<int>> gauge_;  // vertices of each part whose mean is restored
   Eigen::Matrix<double, Eigen::Dynamic, 3> c0_;
   std::unique_ptr<SparseCholesky> chol_;
 };
@@ -1019,12 +1084,19 @@ struct PoseSpaceDeformer::Impl {
   Faces faces;
   int n = 0, m = 0, p = 0, h = 0, r = 0;
   double diag = 1.0;
+  Vec3 center = Vec3::Zero();  // of the rest bounding box
   PoseSpaceOptions opt;
   std::vector<std::vector<int>> handles;
   std::vector<int> handle_all;       // concatenated handle vertices
   std::vector<int> handle_offset;    // h + 1
   std::vector<int> frozen_vertices;  // sorted dense ids
   std::vector<char> is_frozen_vertex;
+  // Mesh parts (connected through edges). A part with a handle vertex, a frozen face, the frame
+  // face or a rotational face is solved; the others are output at rest.
+  int parts = 1;
+  std::vector<int> vpart;         // dense vertex -> part
+  std::vector<char> at_rest;      // dense vertices output at rest: frozen, or in a free part
+  std::vector<char> part_frozen;  // parts holding frozen faces (no fitted rotation)
   // Frame.
   int frame = -1;
   std::array<int, 3> frame_vertices = {-1, -1, -1};
@@ -1036,18 +1108,24 @@ struct PoseSpaceDeformer::Impl {
   // Pose space.
   Interpolator interp_full, interp_positions;
   std::string positions_error;  // why the positions-only interpolator is unavailable
-  // Solve level (the coarse mesh, or the dense mesh itself).
+  // Solve level (the coarse mesh, or the dense mesh itself, or its solved parts).
   bool multires = false;
+  bool whole = true;  // the level is the dense mesh, same numbering
   Vertices lrest;
   Faces lfaces;
-  std::vector<int> lvertices;  // dense id of each level vertex
+  std::vector<int> lvertices;   // dense id of each level vertex
+  std::vector<int> level_of;    // dense vertex -> level vertex, or -1
+  std::vector<int> lface_part;  // level face -> part
+  // Level faces whose rotation is the natural shape's turned by their part's fitted rotation
+  // (rotation components of the final step-1 solve that nothing else holds).
+  std::vector<char> lface_follow;
+  std::vector<int> lvpart;  // level vertex -> part
   IndexPairs ldual;
   RowMatrix omega;    // (E, 3p) relative rotation logs
   RowMatrix stretch;  // (lm, 6p)
   std::vector<std::array<int, 2>> lpairs;
   std::vector<int> lhandle_faces, lhandle_owner;
   std::vector<int> lfixed_faces, lfixed_vertices;
-  int lroot = 0;
   std::unique_ptr<GradientOperator> grad;
   std::unique_ptr<RotationSolver> rot_a, rot_b;
   std::unique_ptr<PositionSolver> pos_a, pos_b;
@@ -1061,7 +1139,9 @@ struct PoseSpaceDeformer::Impl {
   RowMatrix detail;
   std::vector<int> vf_ptr, vf_idx;  // coarse vertex -> coarse faces
   Eigen::VectorXd larea;            // coarse face areas: slivers count little in vertex rotations
-  // Last call.
+  // Last call. deform() holds `busy` for its whole run: the solvers' per-call workspaces, the
+  // lazily built frame solver and these results are shared by every call on this deformer.
+  mutable std::mutex busy;
   mutable Eigen::VectorXd last_weights;
   mutable PoseSpaceStats stats;
 
@@ -1133,6 +1213,23 @@ struct PoseSpaceDeformer::Impl {
     return face_rotation(Vr.inverse(), X.row(faces(f, 0)), X.row(faces(f, 1)), X.row(faces(f, 2)));
   }
 
+  // Distance (max norm) of point x from the rest centre, when beyond kMaxReach diagonals.
+  std::optional<double> beyond_reach(const Vec3& x) const {
+    const double d = (x - center).cwiseAbs().maxCoeff();
+    if (d > kMaxReach * diag) return d;
+    return std::nullopt;
+  }
+  // Throws for the first row of X beyond reach, naming `what`.
+  void check_reach(const Vertices& X, const std::string& what) const {
+    for (Eigen::Index i = 0; i < X.rows(); ++i) {
+      if (const auto d = beyond_reach(X.row(i).transpose())) {
+        fail(what + ": row " + std::to_string(i) + " lies " + number(*d) +
+             " from the rest mesh, over " + number(kMaxReach) +
+             " times its size; rescale the mesh and the positions (only shapes matter)");
+      }
+    }
+  }
+
   void check_inputs(const std::vector<Vertices>& hp, const Matrix3Array* rotations,
                     const Eigen::Matrix4d* frame_transform) const {
     if (static_cast<int>(hp.size()) != h) {
@@ -1146,6 +1243,7 @@ struct PoseSpaceDeformer::Impl {
              std::to_string(hp[j].rows()) + ",3)");
       }
       if (!hp[j].allFinite()) fail(item("handle_positions", j) + ": contains NaN or infinity");
+      check_reach(hp[j], item("handle_positions", j));
     }
     if (rotations) {
       if (static_cast<int>(rotations->size()) != r) {
@@ -1168,6 +1266,11 @@ struct PoseSpaceDeformer::Impl {
         fail(
             "frame_transform: expected a rigid 4x4 transform (rotation, translation, bottom row "
             "0 0 0 1)");
+      }
+      if (const auto d = beyond_reach(Rf * frame_rest_centroid + T.topRightCorner<3, 1>())) {
+        fail("frame_transform: moves the frame face " + number(*d) + " from the rest mesh, over " +
+             number(kMaxReach) +
+             " times its size; rescale the mesh and the positions (only shapes matter)");
       }
     } else if (frame >= 0 && p >= 2 &&
                (frame_in_handles[0] < 0 || frame_in_handles[1] < 0 || frame_in_handles[2] < 0)) {
@@ -1268,7 +1371,7 @@ struct PoseSpaceDeformer::Impl {
   // sum_c b_vc y_c + (sum_c b_vc R_c) d_v(w).
   Vec3 dense_position(int v, const Vertices& y, const Matrix3Array& Rv,
                       const Eigen::VectorXd& w) const {
-    if (!multires) return y.row(v).transpose();
+    if (!multires) return y.row(level_of[v]).transpose();
     return base_position(v, y) + offset(v, Rv, w);
   }
   Vec3 base_position(int v, const Vertices& y) const {
@@ -1296,7 +1399,7 @@ struct PoseSpaceDeformer::Impl {
   PositionSolver::Row make_row(int v) const {
     PositionSolver::Row row;
     if (!multires) {
-      row.idx = {v};
+      row.idx = {level_of[v]};
       row.beta = {1.0};
     } else {
       for (int k = tr_ptr[v]; k < tr_ptr[v + 1]; ++k) {
@@ -1362,15 +1465,10 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
   }
   const DualEdges dual = dual_edges(faces);
-  {
-    int count = 0;
-    face_components(m, dual.pairs, &count);
-    if (count != 1) {
-      fail("faces: the mesh has " + std::to_string(count) +
-           " disconnected parts; pose-space deformation needs one connected surface");
-    }
-  }
   I.diag = (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()).norm();
+  I.center = (vertices.colwise().minCoeff() +
+              0.5 * (vertices.colwise().maxCoeff() - vertices.colwise().minCoeff()))
+                 .transpose();
   if (!(options.position_weight > 0.0) || !std::isfinite(options.position_weight)) {
     fail("position_weight: expected a finite value > 0");
   }
@@ -1401,6 +1499,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
            std::to_string(examples[k].rows()) + ",3)");
     }
     if (!examples[k].allFinite()) fail(item("examples", k) + ": contains NaN or infinity");
+    I.check_reach(examples[k], item("examples", k));
   }
 
   // Handles: non-empty, in range, unique, disjoint.
@@ -1481,6 +1580,49 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     if (pr[0] == pr[1]) fail(item("rotational", q) + ": the two faces must differ");
   }
 
+  // Parts (vertices connected through edges): those with a control are solved, the others
+  // stay exactly at rest.
+  {
+    DisjointSets sets(n);
+    for (int f = 0; f < m; ++f) {
+      sets.unite(faces(f, 0), faces(f, 1));
+      sets.unite(faces(f, 0), faces(f, 2));
+    }
+    std::vector<int> label(n, -1);
+    I.vpart.resize(n);
+    I.parts = 0;
+    for (int v = 0; v < n; ++v) {
+      const int root = sets.find(v);
+      if (label[root] < 0) label[root] = I.parts++;
+      I.vpart[v] = label[root];
+    }
+  }
+  std::vector<int> fpart(m);
+  for (int f = 0; f < m; ++f) fpart[f] = I.vpart[faces(f, 0)];
+  std::vector<char> controlled(I.parts, 0);
+  I.part_frozen.assign(I.parts, 0);
+  for (int v : I.handle_all) controlled[I.vpart[v]] = 1;
+  for (int f : options.frozen) controlled[fpart[f]] = I.part_frozen[fpart[f]] = 1;
+  if (I.frame >= 0) controlled[fpart[I.frame]] = 1;
+  for (const auto& pr : options.rotational) controlled[fpart[pr[0]]] = controlled[fpart[pr[1]]] = 1;
+  I.at_rest.assign(n, 0);
+  for (int v = 0; v < n; ++v) I.at_rest[v] = I.is_frozen_vertex[v] || !controlled[I.vpart[v]];
+  Faces afaces;  // faces of the solved parts, in dense order
+  std::vector<int> aface_ids;
+  for (int f = 0; f < m; ++f) {
+    if (controlled[fpart[f]]) aface_ids.push_back(f);
+  }
+  I.whole = static_cast<int>(aface_ids.size()) == m;
+  if (I.whole) {
+    afaces = faces;
+  } else {
+    afaces.resize(static_cast<Eigen::Index>(aface_ids.size()), 3);
+    for (size_t i = 0; i < aface_ids.size(); ++i)
+      afaces.row(static_cast<Eigen::Index>(i)) = faces.row(aface_ids[i]);
+  }
+  int active_vertices = 0;
+  for (int v = 0; v < n; ++v) active_vertices += controlled[I.vpart[v]];
+
   // Pose space.
   if (options.orientation_weight > 0.0) {
     for (int j = 0; j < I.h; ++j) {
@@ -1541,37 +1683,84 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   }
 
   // Solve level.
+  if (options.coarse_faces && (*options.coarse_faces < 4 || *options.coarse_faces >= m)) {
+    fail("coarse: expected a face count in [4, " + std::to_string(m) + "), got " +
+         std::to_string(*options.coarse_faces));
+  }
+  if (aface_ids.empty()) return;  // no part has a control: deform() returns the rest mesh
   if (options.coarse_faces) {
     const int target = *options.coarse_faces;
-    if (target < 4 || target >= m) {
-      fail("coarse: expected a face count in [4, " + std::to_string(m) + "), got " +
+    if (target >= afaces.rows()) {
+      fail("coarse: expected fewer faces than the " + std::to_string(afaces.rows()) +
+           " of the parts being solved (the parts without a control stay at rest), got " +
            std::to_string(target));
     }
+    // meshopt takes float positions: beyond ~3e38 they are infinite.
+    const double far = vertices.cwiseAbs().maxCoeff();
+    if (!(far < 1e37)) {
+      fail("coarse: the mesh lies " + number(far) +
+           " from the origin and the simplifier works in single precision; move the mesh nearer "
+           "the origin or solve at full resolution");
+    }
     I.multires = true;
-    coarse_mesh(vertices, faces, target, I.diag, &I.lvertices, &I.lrest, &I.lfaces);
-  } else {
+    I.whole = false;
+    coarse_mesh(vertices, afaces, target, I.diag, &I.lvertices, &I.lrest, &I.lfaces);
+  } else if (I.whole) {
     I.lrest = vertices;
     I.lfaces = faces;
     I.lvertices.resize(n);
     std::iota(I.lvertices.begin(), I.lvertices.end(), 0);
+  } else {
+    for (int v = 0; v < n; ++v) {
+      if (controlled[I.vpart[v]]) I.lvertices.push_back(v);
+    }
+    I.lrest = gather_rows(vertices, I.lvertices);
   }
-  const int lm = static_cast<int>(I.lfaces.rows()), ln = static_cast<int>(I.lrest.rows());
-  I.ldual = I.multires ? dual_edges(I.lfaces).pairs : dual.pairs;
-  if (I.multires) {
-    int count = 0;
-    face_components(lm, I.ldual, &count);
-    if (count != 1) {
-      fail("coarse: the simplified mesh falls apart into " + std::to_string(count) +
-           " pieces; choose a larger face count");
+  const int ln = static_cast<int>(I.lvertices.size());
+  I.level_of.assign(n, -1);
+  for (int c = 0; c < ln; ++c) I.level_of[I.lvertices[c]] = c;
+  const std::vector<int>& level_of = I.level_of;
+  std::vector<int> lface_of;  // single resolution: dense face -> level face
+  if (!I.multires && !I.whole) {
+    I.lfaces.resize(afaces.rows(), 3);
+    lface_of.assign(m, -1);
+    for (Eigen::Index f = 0; f < afaces.rows(); ++f) {
+      for (int l = 0; l < 3; ++l) I.lfaces(f, l) = level_of[afaces(f, l)];
+      lface_of[aface_ids[f]] = static_cast<int>(f);
     }
   }
-  std::vector<int> level_of(n, -1);  // dense vertex -> level vertex
-  for (int c = 0; c < ln; ++c) level_of[I.lvertices[c]] = c;
+  const int lm = static_cast<int>(I.lfaces.rows());
+  I.ldual = I.whole ? dual.pairs : dual_edges(I.lfaces).pairs;
+  I.lface_part.resize(lm);
+  for (int f = 0; f < lm; ++f) I.lface_part[f] = I.vpart[I.lvertices[I.lfaces(f, 0)]];
+  std::vector<int> lvpart(ln);
+  for (int c = 0; c < ln; ++c) lvpart[c] = I.vpart[I.lvertices[c]];
+  if (I.multires) {
+    // Each solved part must come out as one piece of the coarse mesh.
+    int count = 0;
+    const std::vector<int> lcomp = face_components(lm, I.ldual, &count);
+    std::vector<int> pieces(I.parts, 0), seen(count, 0);
+    for (int f = 0; f < lm; ++f) {
+      if (!seen[lcomp[f]]) ++pieces[I.lface_part[f]];
+      seen[lcomp[f]] = 1;
+    }
+    for (int c = 0; c < I.parts; ++c) {
+      if (!controlled[c] || pieces[c] == 1) continue;
+      std::string which;
+      for (int f = 0; f < m && which.empty(); ++f) {
+        if (fpart[f] == c) which = "the part with face " + std::to_string(f);
+      }
+      fail("coarse: " + (I.parts == 1 ? std::string("the mesh") : which) +
+           (pieces[c] == 0 ? " vanishes from the simplified mesh"
+                           : " falls apart into " + std::to_string(pieces[c]) + " pieces") +
+           "; choose a larger face count");
+    }
+  }
 
   // Multiresolution transfer weights: harmonic on the dense vertex graph (edge weights
   // 1/length^2), one Dirichlet anchor per coarse vertex, the largest few kept per vertex.
   if (I.multires) {
-    const IndexPairs edges = mesh_edges(faces);
+    const IndexPairs edges = mesh_edges(afaces);
     Eigen::VectorXd phi(edges.rows());
     double mean_len = 0.0;
     for (Eigen::Index e = 0; e < edges.rows(); ++e) {
@@ -1585,25 +1774,17 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
     AnchorList anchors(ln);
     for (int c = 0; c < ln; ++c) anchors[c] = {I.lvertices[c]};
-    const RowMatrix W = harmonic_weights(n, edges, phi, anchors);
-    const int K = std::min(options.transfer_neighbors, ln);
-    I.tr_ptr.assign(1, 0);
-    std::vector<int> cols(ln);
-    for (int v = 0; v < n; ++v) {
-      std::iota(cols.begin(), cols.end(), 0);
-      std::partial_sort(cols.begin(), cols.begin() + K, cols.end(), [&](int a, int b) {
-        return W(v, a) != W(v, b) ? W(v, a) > W(v, b) : a < b;
-      });
+    // The largest few per vertex, renormalised (the dense (n, ln) matrix would take 8 n ln
+    // bytes: 1.9 GB at a million faces and 1000 coarse faces, several copies at its peak).
+    const SparseWeights W =
+        largest_harmonic_weights(n, edges, phi, anchors, options.transfer_neighbors);
+    I.tr_ptr = W.ptr;
+    I.tr_idx = W.idx;
+    I.tr_w = W.w;
+    for (int v = 0; v < n; ++v) {  // vertices of free parts have none
       double sum = 0.0;
-      for (int k = 0; k < K; ++k) {
-        if (W(v, cols[k]) > 0.0) sum += W(v, cols[k]);
-      }
-      for (int k = 0; k < K; ++k) {
-        if (!(W(v, cols[k]) > 0.0)) continue;
-        I.tr_idx.push_back(cols[k]);
-        I.tr_w.push_back(W(v, cols[k]) / sum);
-      }
-      I.tr_ptr.push_back(static_cast<int>(I.tr_idx.size()));
+      for (int k = I.tr_ptr[v]; k < I.tr_ptr[v + 1]; ++k) sum += I.tr_w[k];
+      for (int k = I.tr_ptr[v]; k < I.tr_ptr[v + 1]; ++k) I.tr_w[k] /= sum;
     }
     I.larea = double_areas(I.lrest, I.lfaces);
     std::vector<int> cnt(ln + 1, 0);
@@ -1624,7 +1805,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
   I.stretch = RowMatrix::Zero(lm, 6 * I.p);
   std::vector<Matrix3Array> example_rotations(I.p);
   for (int k = 0; k < I.p; ++k) {
-    const Vertices ex = I.multires ? gather_rows(examples[k], I.lvertices) : examples[k];
+    const Vertices ex = I.whole ? examples[k] : gather_rows(examples[k], I.lvertices);
     const Matrix3Array T = deformation_gradients(I.lrest, ex, I.lfaces);
     Matrix3Array& R = example_rotations[k];
     R.resize(lm);
@@ -1673,7 +1854,7 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     if (I.is_frozen_vertex[I.lvertices[c]]) I.lfixed_vertices.push_back(c);
   }
   if (!I.multires) {
-    for (int f : options.frozen) lface_frozen[f] = 1;
+    for (int f : options.frozen) lface_frozen[I.whole ? f : lface_of[f]] = 1;
   } else {
     for (int f = 0; f < lm; ++f) {
       lface_frozen[f] = I.is_frozen_vertex[I.lvertices[I.lfaces(f, 0)]] &&
@@ -1689,22 +1870,18 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
         "frozen: the frozen region contains no face of the coarse mesh; enlarge it or use a "
         "larger coarse face count");
   }
-  // Root of the BFS gauge (the frame face, else the face nearest the mesh centre).
-  {
-    Vec3 point = vertices.colwise().mean().transpose();
-    if (I.frame >= 0) point = I.frame_rest_centroid;
-    I.lroot = nearest_face(I.lrest, I.lfaces, point);
-  }
+  std::vector<std::vector<int>> part_members(I.parts), lpart_faces(I.parts);
+  for (int v = 0; v < n; ++v) part_members[I.vpart[v]].push_back(v);
+  for (int f = 0; f < lm; ++f) lpart_faces[I.lface_part[f]].push_back(f);
   // Rotational pairs on the level.
   for (int q = 0; q < I.r; ++q) {
     std::array<int, 2> lp;
     for (int s = 0; s < 2; ++s) {
       const int f = options.rotational[q][s];
-      const Vec3 c =
-          (vertices.row(faces(f, 0)) + vertices.row(faces(f, 1)) + vertices.row(faces(f, 2)))
-              .transpose() /
-          3.0;
-      lp[s] = I.multires ? nearest_face(I.lrest, I.lfaces, c) : f;
+      const Vec3 c = centroid(vertices, faces(f, 0), faces(f, 1), faces(f, 2));
+      lp[s] = I.multires ? nearest_face(I.lrest, I.lfaces, c, lpart_faces[fpart[f]])
+              : I.whole  ? f
+                         : lface_of[f];
     }
     if (lp[0] == lp[1]) {
       fail(item("rotational", q) +
@@ -1755,29 +1932,105 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
   }
   I.grad = std::make_unique<GradientOperator>(I.lrest, I.lfaces, options.area_weights);
-  // The natural shape is solved with the root face fixed (or the frozen faces).
-  I.rot_a = std::make_unique<RotationSolver>(
-      lm, I.ldual, I.lpairs, options.joint_weight,
-      I.lfixed_faces.empty() ? std::vector<int>{I.lroot} : I.lfixed_faces, I.lroot,
-      std::vector<int>{}, 0.0, edge_cost, edge_weight);
+  // Rotation components: faces linked by dual edges or rotational pairs. Each needs a fixed
+  // face, a penalty face or a prescribed rotation to pin its global rotation.
+  int rcount = 0;
+  std::vector<int> rcomp;
+  {
+    DisjointSets sets(lm);
+    for (Eigen::Index e = 0; e < I.ldual.rows(); ++e) sets.unite(I.ldual(e, 0), I.ldual(e, 1));
+    for (const auto& lp : I.lpairs) sets.unite(lp[0], lp[1]);
+    rcomp.resize(lm);
+    std::vector<int> label(lm, -1);
+    for (int f = 0; f < lm; ++f) {
+      const int root = sets.find(f);
+      if (label[root] < 0) label[root] = rcount++;
+      rcomp[f] = label[root];
+    }
+  }
+  // Its root face: the one nearest the frame face if that is in it, else nearest the rest
+  // centroid of the parts it touches (choices by geometry, not by the numbering).
+  std::vector<int> rroot(rcount, -1);
+  {
+    std::vector<std::vector<int>> touches(rcount), rfaces(rcount);  // its parts, its faces
+    for (int f = 0; f < lm; ++f) {
+      touches[rcomp[f]].push_back(I.lface_part[f]);
+      rfaces[rcomp[f]].push_back(f);
+    }
+    for (std::vector<int>& t : touches) {
+      std::sort(t.begin(), t.end());
+      t.erase(std::unique(t.begin(), t.end()), t.end());
+    }
+    int frame_comp = -1;
+    const Vec3 frame_point =
+        I.frame < 0 ? Vec3::Zero()
+                    : centroid(vertices, faces(I.frame, 0), faces(I.frame, 1), faces(I.frame, 2));
+    if (I.frame >= 0) {
+      const int lf = I.multires
+                         ? nearest_face(I.lrest, I.lfaces, frame_point, lpart_faces[fpart[I.frame]])
+                     : I.whole ? I.frame
+                               : lface_of[I.frame];
+      frame_comp = rcomp[lf];
+    }
+    for (int k = 0; k < rcount; ++k) {
+      Vec3 point = frame_point;
+      if (k != frame_comp) {
+        std::vector<int> ids;
+        for (int c : touches[k])
+          ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
+        point = canonical_mean(vertices, ids);
+      }
+      rroot[k] = nearest_face(I.lrest, I.lfaces, point, rfaces[k]);
+    }
+  }
+  std::vector<char> rfrozen(rcount, 0), rheld(rcount, 0);
+  for (int f : I.lfixed_faces) rfrozen[rcomp[f]] = 1;
+  for (int f : I.lhandle_faces) rheld[rcomp[f]] = 1;
+  // Tree roots: the fixed faces, then the root of every rotation component without one.
+  auto tree_roots = [&](const std::vector<int>& fixed) {
+    std::vector<int> roots = fixed;
+    std::vector<char> has(rcount, 0);
+    for (int f : fixed) has[rcomp[f]] = 1;
+    for (int k = 0; k < rcount; ++k) {
+      if (!has[k]) roots.push_back(rroot[k]);
+    }
+    return roots;
+  };
+  // The natural shape is solved with the frozen faces fixed, or else the root face.
+  std::vector<int> fixed_a = I.lfixed_faces;
+  for (int k = 0; k < rcount; ++k) {
+    if (!rfrozen[k]) fixed_a.push_back(rroot[k]);
+  }
+  I.rot_a = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight, fixed_a,
+                                             tree_roots(fixed_a), std::vector<int>{}, 0.0,
+                                             edge_cost, edge_weight);
+  I.lface_follow.assign(lm, 1);
   if (!I.lhandle_faces.empty()) {
-    I.rot_b = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight,
-                                               I.lfixed_faces, I.lroot, I.lhandle_faces,
+    // A rotation component without frozen or handle faces follows its part's fitted rotation;
+    // in this solve its root is held (only to keep the matrix definite).
+    std::vector<int> fixed_b = I.lfixed_faces;
+    for (int k = 0; k < rcount; ++k) {
+      if (!rfrozen[k] && !rheld[k]) fixed_b.push_back(rroot[k]);
+    }
+    for (int f = 0; f < lm; ++f) I.lface_follow[f] = !rfrozen[rcomp[f]] && !rheld[rcomp[f]];
+    I.rot_b = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight, fixed_b,
+                                               tree_roots(fixed_b), I.lhandle_faces,
                                                options.rotation_weight, edge_cost, edge_weight);
   }
   // Position penalty relative to the mean diagonal of the gradient term; with
   // multiresolution, dense rows are scaled by coarse/dense vertex counts so the balance
   // matches a single-resolution solve.
   I.lambda_pos = options.position_weight * I.grad->mean_diagonal *
-                 (I.multires ? static_cast<double>(ln) / n : 1.0);
+                 (I.multires ? static_cast<double>(ln) / active_vertices : 1.0);
   for (int v : I.handle_all) I.handle_rows.push_back(I.make_row(v));
   if (I.frame >= 0) {
     for (int l = 0; l < 3; ++l) I.frame_rows.push_back(I.make_row(I.frame_vertices[l]));
   }
+  I.lvpart = lvpart;
   I.pos_a = std::make_unique<PositionSolver>(I.lrest, I.lfaces, *I.grad, I.lfixed_vertices,
-                                             std::vector<PositionSolver::Row>{}, 0.0);
+                                             std::vector<PositionSolver::Row>{}, 0.0, I.lvpart);
   I.pos_b = std::make_unique<PositionSolver>(I.lrest, I.lfaces, *I.grad, I.lfixed_vertices,
-                                             I.handle_rows, I.lambda_pos);
+                                             I.handle_rows, I.lambda_pos, I.lvpart);
 }
 
 PoseSpaceDeformer::~PoseSpaceDeformer() = default;
@@ -1791,6 +2044,11 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   const Vertices targets = concat_targets(hp);
   const Eigen::VectorXd w = weights(targets, rotations, frame_transform);
   stats.ms_weights = ms_since(t0);
+  if (!w.allFinite()) fail(kOverflow);
+  if (lfaces.rows() == 0) {  // no part has a control: everything stays at rest
+    last_weights = w;
+    return rest;
+  }
 
   t0 = Clock::now();
   Matrix3Array Q, S;
@@ -1812,8 +2070,8 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   pos_a->solve(T, nullptr, &y0);
   stats.ms_positions += ms_since(t0);
 
-  // Fit the natural shape to the handles: one rotation for the whole (unless frozen), one per
-  // handle for its faces.
+  // Fit the natural shape to the handles: one rotation per part (none for a part with frozen
+  // faces: they hold it in place), one per handle for its faces.
   t0 = Clock::now();
   Matrix3Array Rv0;
   if (multires) vertex_rotations(R0, &Rv0);
@@ -1840,29 +2098,39 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   for (size_t s = 0; s < cverts.size(); ++s) {
     x0.row(static_cast<Eigen::Index>(s)) = dense_position(cverts[s], y0, Rv0, w).transpose();
   }
-  Mat3 Gall = Mat3::Identity();
-  if (frozen_vertices.empty() && !cverts.empty()) Gall = best_rotation(x0, ctargets);
+  std::vector<Mat3> Gpart(parts, Mat3::Identity());
+  {
+    std::vector<std::vector<int>> rows(parts);
+    for (size_t s = 0; s < cverts.size(); ++s)
+      rows[vpart[cverts[s]]].push_back(static_cast<int>(s));
+    for (int c = 0; c < parts; ++c) {
+      if (part_frozen[c] || rows[c].empty()) continue;
+      Gpart[c] = best_rotation(gather_rows(x0, rows[c]), gather_rows(ctargets, rows[c]));
+    }
+  }
   stats.ms_fit = ms_since(t0);
 
   t0 = Clock::now();
   Matrix3Array R(lm);
   if (rot_b) {
     Matrix3Array Z(lm, Mat3::Identity()), init(lm);
-    std::vector<Mat3> Gj(h, Gall);
+    std::vector<Mat3> Gj(h);
     for (int j = 0; j < h; ++j) {
+      Gj[j] = Gpart[vpart[handle_all[handle_offset[j]]]];
       const int b = handle_offset[j], e = handle_offset[j + 1];
       if (e - b < 3) continue;
       const Vertices xs = x0.middleRows(b, e - b), ts = targets.middleRows(b, e - b);
       if (planarity(xs) > 1e-6 && planarity(ts) > 1e-6) Gj[j] = best_rotation(xs, ts);
     }
-    for (int i = 0; i < lm; ++i) init[i] = Gall * R0[i];
+    for (int i = 0; i < lm; ++i) init[i] = Gpart[lface_part[i]] * R0[i];
     for (size_t s = 0; s < lhandle_faces.size(); ++s) {
       const int f = lhandle_faces[s];
       Z[f] = Gj[lhandle_owner[s]] * R0[f];
     }
     stats.iterations_second = solve_rotations(*rot_b, Q, G, Z, &init, true, &R);
-  } else {
-    for (int i = 0; i < lm; ++i) R[i] = Gall * R0[i];
+  }
+  for (int i = 0; i < lm; ++i) {
+    if (lface_follow[i]) R[i] = Gpart[lface_part[i]] * R0[i];
   }
   stats.ms_rotations += ms_since(t0);
 
@@ -1886,22 +2154,32 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
     if (!pos_b_frame) {
       std::vector<PositionSolver::Row> rows = handle_rows;
       rows.insert(rows.end(), frame_rows.begin(), frame_rows.end());
-      pos_b_frame =
-          std::make_unique<PositionSolver>(lrest, lfaces, *grad, lfixed_vertices, rows, lambda_pos);
+      pos_b_frame = std::make_unique<PositionSolver>(lrest, lfaces, *grad, lfixed_vertices, rows,
+                                                     lambda_pos, lvpart);
     }
   }
   Vertices y;
   (with_frame ? pos_b_frame : pos_b)->solve(T, nrows ? &row_t : nullptr, &y);
   stats.ms_positions += ms_since(t0);
 
-  last_weights = w;
-  if (!multires) return y;
+  if (whole) {
+    if (!y.allFinite()) fail(kOverflow);
+    last_weights = w;
+    return y;
+  }
+  if (!multires) {
+    Vertices X = rest;
+    for (Eigen::Index c = 0; c < y.rows(); ++c) X.row(lvertices[c]) = y.row(c);
+    if (!X.allFinite()) fail(kOverflow);
+    last_weights = w;
+    return X;
+  }
 
   t0 = Clock::now();
   Vertices X(n, 3);
   auto body = [&](int b, int e) {
     for (int v = b; v < e; ++v) {
-      if (is_frozen_vertex[v]) {
+      if (at_rest[v]) {
         X.row(v) = rest.row(v);
       } else {
         X.row(v) = dense_position(v, y, Rv, w).transpose();
@@ -1914,6 +2192,8 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
     parallel_ranges(n, kParallelMin / 2, kTasks, body);
   }
   stats.ms_transfer = ms_since(t0);
+  if (!X.allFinite()) fail(kOverflow);
+  last_weights = w;
   return X;
 }
 
@@ -1921,18 +2201,34 @@ Vertices PoseSpaceDeformer::deform(const std::vector<Vertices>& handle_positions
                                    const Matrix3Array* rotations,
                                    const Eigen::Matrix4d* frame_transform) const {
   impl_->check_inputs(handle_positions, rotations, frame_transform);
-  return impl_->run(handle_positions, rotations, frame_transform);
+  const std::lock_guard<std::mutex> lock(impl_->busy);
+  const PoseSpaceStats kept = impl_->stats;
+  try {
+    return impl_->run(handle_positions, rotations, frame_transform);
+  } catch (...) {
+    impl_->stats = kept;  // a refused call changes nothing
+    throw;
+  }
 }
 
 Eigen::VectorXd PoseSpaceDeformer::pose_weights(const std::vector<Vertices>& handle_positions,
                                                 const Matrix3Array* rotations,
                                                 const Eigen::Matrix4d* frame_transform) const {
   impl_->check_inputs(handle_positions, rotations, frame_transform);
-  return impl_->weights(impl_->concat_targets(handle_positions), rotations, frame_transform);
+  Eigen::VectorXd w =
+      impl_->weights(impl_->concat_targets(handle_positions), rotations, frame_transform);
+  if (!w.allFinite()) fail(kOverflow);
+  return w;
 }
 
-const Eigen::VectorXd& PoseSpaceDeformer::example_weights() const { return impl_->last_weights; }
-const PoseSpaceStats& PoseSpaceDeformer::last_stats() const { return impl_->stats; }
+Eigen::VectorXd PoseSpaceDeformer::example_weights() const {
+  const std::lock_guard<std::mutex> lock(impl_->busy);
+  return impl_->last_weights;
+}
+PoseSpaceStats PoseSpaceDeformer::last_stats() const {
+  const std::lock_guard<std::mutex> lock(impl_->busy);
+  return impl_->stats;
+}
 int PoseSpaceDeformer::num_examples() const { return impl_->p; }
 int PoseSpaceDeformer::num_handles() const { return impl_->h; }
 int PoseSpaceDeformer::num_rotational() const { return impl_->r; }

@@ -3,6 +3,7 @@
 #include <Eigen/Dense>
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
 #include <string>
@@ -52,11 +53,19 @@ constexpr RodriguesSeries make_series() {
 }
 constexpr RodriguesSeries kSeries = make_series();
 
-// sin(t)/t and (1 - cos t)/t^2 beyond the series range (only large anisotropic blends get there).
-inline void trig_coefficients(double t2, double* a, double* b) {
-  const double t = std::sqrt(t2), h = std::sin(0.5 * t);
-  *a = std::sin(t) / t;
-  *b = 2.0 * h * h / t2;
+// Beyond the series range (blends of rotation vectors longer than pi, or weights outside
+// [0, 1]): the factor that takes the whole turns out of a rotation vector of squared length t2,
+// i.e. maps angle t to t - 2 pi round(t / 2 pi) in [-pi, pi] about the same axis, the same
+// rotation, where the series applies. 2 pi in three parts (Cody-Waite): k * kTwoPiHi is exact
+// for k < 2^29 turns and the subtraction from t is exact, so the reduced angle is as accurate
+// as sin(t) would be; a square root and a division instead of two sines.
+inline double whole_turns_removed(double t2) {
+  constexpr double kTwoPiHi = 6.2831854820251465;        // float(2 pi): 24 significant bits
+  constexpr double kTwoPiMid = -1.7484556000744487e-07;  // double(2 pi) - kTwoPiHi, exact
+  constexpr double kTwoPiLo = 2.4492935982947064e-16;    // 2 pi - double(2 pi)
+  const double t = std::sqrt(t2);
+  const double k = std::round(t * (1.0 / 6.283185307179586));
+  return (((t - k * kTwoPiHi) - k * kTwoPiMid) - k * kTwoPiLo) / t;
 }
 
 // e^s for four lanes without a libm call per lane (the blended log-scale of every face is
@@ -102,17 +111,16 @@ MD_ALWAYS_INLINE void exp4(const Vec4d& s, Vec4d* out) {
 
 // R = I + a K + b K^2 for K = [omega]x.
 MD_ALWAYS_INLINE void rodrigues(double x, double y, double z, double scale, Eigen::Matrix3d* R) {
-  const double t2 = x * x + y * y + z * z;
-  double a, b;
-  if (t2 <= kSeriesMaxT2) {
-    a = kSeries.a[kSeriesTerms - 1];
-    b = kSeries.b[kSeriesTerms - 1];
-    for (int k = kSeriesTerms - 2; k >= 0; --k) {
-      a = a * t2 + kSeries.a[k];
-      b = b * t2 + kSeries.b[k];
-    }
-  } else {
-    trig_coefficients(t2, &a, &b);
+  double t2 = x * x + y * y + z * z;
+  if (!(t2 <= kSeriesMaxT2)) {
+    const double f = whole_turns_removed(t2);
+    x *= f, y *= f, z *= f;
+    t2 = x * x + y * y + z * z;
+  }
+  double a = kSeries.a[kSeriesTerms - 1], b = kSeries.b[kSeriesTerms - 1];
+  for (int k = kSeriesTerms - 2; k >= 0; --k) {
+    a = a * t2 + kSeries.a[k];
+    b = b * t2 + kSeries.b[k];
   }
   a *= scale;
   b *= scale;
@@ -133,6 +141,32 @@ Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega) {
   Eigen::Matrix3d R;
   rodrigues(omega.x(), omega.y(), omega.z(), 1.0, &R);
   return R;
+}
+
+double rotation_vector_mismatch(const Eigen::Vector3d& v, const Eigen::Matrix3d& R) {
+  const Eigen::Matrix3d E = rotation_exp(v);
+  if (!E.allFinite()) return std::numeric_limits<double>::quiet_NaN();
+  return rotation_log(E.transpose() * R).norm();
+}
+
+Eigen::Vector3d rotation_log_near(const Eigen::Matrix3d& R, const Eigen::Vector3d& near) {
+  constexpr double kTwoPi = 6.28318530717958647693;
+  const Eigen::Vector3d r = rotation_log(R);
+  const double theta = r.norm();
+  Eigen::Vector3d best = r;
+  if (theta > 0.0) {
+    // |t u - near|^2 = t^2 - 2 t (u . near) + |near|^2: the t in theta + 2 pi Z nearest u . near.
+    const Eigen::Vector3d u = r / theta;
+    best = (theta + kTwoPi * std::round((u.dot(near) - theta) / kTwoPi)) * u;
+  }
+  // At a whole turn every axis is a log of the identity, and R's axis is noise: keep near's.
+  const double len = near.norm();
+  if (theta <= kRotationVectorTolerance && len >= 0.5 * kTwoPi) {
+    const Eigen::Vector3d a = near / len;
+    const Eigen::Vector3d kept = (kTwoPi * std::round(len / kTwoPi) + r.dot(a)) * a;
+    if ((kept - near).squaredNorm() < (best - near).squaredNorm()) best = kept;
+  }
+  return best;
 }
 
 namespace {
@@ -158,6 +192,42 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
   *S = U * svd.singularValues().asDiagonal() * U.transpose();
   if (!S->allFinite())
     throw std::invalid_argument("transform: entries too large (scale overflows)");
+}
+
+std::vector<Eigen::Vector3d> unwrap_rotations(const Matrix3Array& frames, int k,
+                                              const std::vector<Eigen::Vector3d>& start) {
+  if (k < 1 || frames.size() % static_cast<size_t>(k) != 0) {
+    throw std::invalid_argument("unwrap_rotations: expected a whole number of frames of k = " +
+                                std::to_string(k) + " rotations");
+  }
+  if (!start.empty() && start.size() != static_cast<size_t>(k)) {
+    throw std::invalid_argument("start: expected one vector per sequence (" + std::to_string(k) +
+                                "), got " + std::to_string(start.size()));
+  }
+  for (size_t a = 0; a < start.size(); ++a) {
+    if (!start[a].allFinite()) {
+      throw std::invalid_argument("start[" + std::to_string(a) + "]: contains NaN or infinity");
+    }
+  }
+  std::vector<Eigen::Vector3d> out(frames.size());
+  Eigen::Matrix3d S, R;
+  for (size_t i = 0; i < frames.size(); ++i) {
+    try {
+      polar_decompose(frames[i], &S, &R);
+    } catch (const std::invalid_argument& e) {
+      const size_t kk = static_cast<size_t>(k);
+      throw std::invalid_argument("rotations[" + std::to_string(i / kk) +
+                                  (k > 1 ? "][" + std::to_string(i % kk) + "]" : "]") + ": " +
+                                  e.what());
+    }
+    const size_t a = i % static_cast<size_t>(k);
+    if (i >= static_cast<size_t>(k)) {
+      out[i] = rotation_log_near(R, out[i - static_cast<size_t>(k)]);
+    } else {
+      out[i] = start.empty() ? rotation_log(R) : rotation_log_near(R, start[a]);
+    }
+  }
+  return out;
 }
 
 bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace) {
@@ -355,23 +425,29 @@ bool similarity_logs(const std::vector<TransformLog>& logs, std::vector<double>*
 
 // sc * Rodrigues(x, y, z) for four lanes, column-major into o[0..8]: sc (I + A K + B K^2) with
 // K = [(x, y, z)]x and the series coefficients A = sin t / t, B = (1 - cos t) / t^2.
-MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x, const Vec4d& y, const Vec4d& z, const Vec4d& sc,
-                                 Vec4d* o) {
-  const Vec4d t2 = x * x + y * y + z * z;
+MD_ALWAYS_INLINE void rodrigues4(const Vec4d& x_in, const Vec4d& y_in, const Vec4d& z_in,
+                                 const Vec4d& sc, Vec4d* o) {
+  Vec4d x = x_in, y = y_in, z = z_in;
+  Vec4d t2 = x * x + y * y + z * z;
   const Vec4d zero = {0.0, 0.0, 0.0, 0.0};
   Vec4d A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
   for (int j = kSeriesTerms - 2; j >= 0; --j) {
     A = A * t2 + kSeries.a[j];
     B = B * t2 + kSeries.b[j];
   }
-  if (any_lane(t2 > kSeriesMaxT2)) {  // not reached by convex blends of angles <= pi
+  // Not reached by convex blends of principal logs (angles <= pi): rotation vectors past half a
+  // turn, weights outside [0, 1]. The series again, after the whole turns are taken out.
+  if (any_lane(t2 > kSeriesMaxT2)) {
+    Vec4d f = {1.0, 1.0, 1.0, 1.0};
     for (int l = 0; l < kGroupFaces; ++l) {
-      if (t2[l] > kSeriesMaxT2) {
-        double a, b;
-        trig_coefficients(t2[l], &a, &b);
-        A[l] = a;
-        B[l] = b;
-      }
+      if (!(t2[l] <= kSeriesMaxT2)) f[l] = whole_turns_removed(t2[l]);
+    }
+    x *= f, y *= f, z *= f;
+    t2 = x * x + y * y + z * z;
+    A = zero + kSeries.a[kSeriesTerms - 1], B = zero + kSeries.b[kSeriesTerms - 1];
+    for (int j = kSeriesTerms - 2; j >= 0; --j) {
+      A = A * t2 + kSeries.a[j];
+      B = B * t2 + kSeries.b[j];
     }
   }
   A *= sc;

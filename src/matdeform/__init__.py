@@ -28,12 +28,20 @@ from .pose_space import PoseSpaceDeformer
 from .pyramid import PyramidDeformer, pyramid_coordinates
 from .stiffness import bend_from_shear, bend_from_vertex, shear_from_vertex
 from .threads import num_threads, set_num_threads
-from .transforms import blend_transforms, polar_decompose, transform_exp, transform_log
+from .transforms import (
+    ROTATION_VECTOR_TOLERANCE,
+    blend_transforms,
+    polar_decompose,
+    transform_exp,
+    transform_log,
+    unwrap_rotations,
+)
 from .weights import harmonic_weights
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "ROTATION_VECTOR_TOLERANCE",
     "EdgeDeformer",
     "MaterialDeformer",
     "PyramidDeformer",
@@ -62,5 +70,6 @@ __all__ = [
     "stiffness_from_distortion",
     "transform_exp",
     "transform_log",
+    "unwrap_rotations",
     "write_obj",
 ]

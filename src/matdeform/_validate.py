@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import numbers
+
 import numpy as np
 
 
@@ -54,6 +57,57 @@ def check_stiffness_ratio(a: np.ndarray, name: str) -> None:
             f"stiffness ratio max/min = {a.max() / a.min():.3g} is above 1e12; raise the smallest "
             "values (only ratios matter)",
         )
+
+
+# The largest count or index the core's 32-bit ints hold.
+MAX_INT = 2**31 - 1
+
+
+def as_real(
+    x,
+    name: str,
+    lo: float,
+    hi: float = math.inf,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    allow_inf: bool = False,
+) -> float:
+    """A real number (Python or numpy, not bool or str) in [lo, hi], each end open on request;
+    finite unless allow_inf (then +inf passes when hi is inf)."""
+    lo_s = f"({lo:g}" if lo_open else f"[{lo:g}"
+    hi_s = (
+        ("inf]" if allow_inf else "inf)")
+        if hi == math.inf
+        else f"{hi:g}" + (")" if hi_open else "]")
+    )
+    what = f"a {'' if allow_inf else 'finite '}value in {lo_s}, {hi_s}"
+    if isinstance(x, bool) or not isinstance(x, numbers.Real):
+        raise _fail(name, f"expected {what}, got {type(x).__name__} {x!r}")
+    v = float(x)
+    ok = (
+        (math.isfinite(v) or (allow_inf and v == math.inf and hi == math.inf))
+        and (v > lo if lo_open else v >= lo)
+        and (v < hi if hi_open else v <= hi)
+    )
+    if not ok:
+        raise _fail(name, f"expected {what}, got {v!r}")
+    return v
+
+
+def as_count(x, name: str, lo: int = 0, hi: int = MAX_INT) -> int:
+    """An integer (Python or numpy, not bool) in [lo, hi]; hi defaults to what a C int holds."""
+    if isinstance(x, bool) or not isinstance(x, numbers.Integral):
+        raise _fail(name, f"expected an integer in [{lo}, {hi}], got {type(x).__name__} {x!r}")
+    if not lo <= int(x) <= hi:
+        raise _fail(name, f"expected an integer in [{lo}, {hi}], got {int(x)}")
+    return int(x)
+
+
+def as_bool(x, name: str) -> bool:
+    """True or False (numpy's too); anything else, even truthy, is refused."""
+    if not isinstance(x, (bool, np.bool_)):
+        raise _fail(name, f"expected True or False, got {type(x).__name__} {x!r}")
+    return bool(x)
 
 
 def as_float_array(x, name: str) -> np.ndarray:
@@ -190,29 +244,14 @@ def as_transforms(x, count: int, name: str = "transforms") -> np.ndarray:
     return np.ascontiguousarray(t)
 
 
-# Scalars. The core takes C ints (32 bits) and doubles; a value beyond them must fail here, as a
-# ValueError naming the argument, not as pybind's TypeError or a MemoryError further on.
-MAX_INT32 = 2**31 - 1
-
-
-def as_count(x, name: str, lower: int = 0, upper: int = MAX_INT32) -> int:
-    """An integer in [lower, upper] (Python or numpy integers; bools are refused)."""
-    if isinstance(x, bool) or not isinstance(x, (int, np.integer)):
-        raise _fail(name, f"expected an integer in [{lower}, {upper}], got {x!r}")
-    if not lower <= int(x) <= upper:
-        raise _fail(name, f"expected an integer in [{lower}, {upper}], got {x!r}")
-    return int(x)
-
-
-def as_real(x, name: str, lower: float = 0.0, upper: float = np.inf) -> float:
-    """A finite float in [lower, upper] (bools are refused)."""
-    expected = f"expected a finite number in [{lower:g}, {upper:g}], got {x!r}"
-    if isinstance(x, bool):
-        raise _fail(name, expected)
+def as_rotation_vectors(x, count: int, name: str = "rotation_vectors") -> np.ndarray:
+    """(count,3) finite float64 axis * angle vectors (radians, any length), C-contiguous."""
     try:
-        v = float(x)
-    except (TypeError, ValueError, OverflowError):
-        raise _fail(name, expected) from None
-    if not (np.isfinite(v) and lower <= v <= upper):
-        raise _fail(name, expected)
-    return v
+        a = np.asarray(x, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise _fail(name, f"expected a float array of shape ({count},3)") from None
+    if a.shape != (count, 3):
+        raise _fail(name, f"expected shape ({count},3), one vector per anchor, got {a.shape}")
+    if not np.isfinite(a).all():
+        raise _fail(name, "contains NaN or infinity")
+    return np.ascontiguousarray(a)

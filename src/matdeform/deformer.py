@@ -11,6 +11,7 @@ from ._validate import (
     as_float_array,
     as_index_set,
     as_mesh_vertices,
+    as_rotation_vectors,
     as_stiffness,
     as_transforms,
     as_vertices,
@@ -92,22 +93,34 @@ class MaterialDeformer:
             ax,
         )
 
-    def deform(self, transforms, pinned_positions=None, out=None) -> np.ndarray:
+    def deform(
+        self, transforms, pinned_positions=None, out=None, *, rotation_vectors=None
+    ) -> np.ndarray:
         """Deformed positions (n,3) float64 for anchor transforms (k,3,3) or (k,4,4).
 
         transforms are in the mesh's coordinate frame; their linear part needs det > 0.
         pinned_positions: (len(pinned),3), only when the deformer was built with ``pinned``.
         out: a writeable C-contiguous float32 array (n,3) to receive the result rounded to
         float32 (what Blender stores), returned; nothing of mesh size is allocated per call.
+        rotation_vectors: (k,3) axis * angle (radians, any length), one per anchor: the branch
+            of each anchor's rotation log to blend, e.g. 3*pi about the axis for a turn and a
+            half, so that faces between anchors turn by the fraction of the whole twist (see
+            ``unwrap_rotations``). Row a must be a log of the rotation factor R of
+            transforms[a][:3, :3] (polar decomposition M = S @ R): exp(row a) equals R within
+            ``ROTATION_VECTOR_TOLERANCE`` (1e-4 rad), else ValueError. None blends the
+            principal logs (angles <= pi): a turn past half a turn then unwinds.
         """
         t = as_transforms(transforms, self._k)
+        rv = None
+        if rotation_vectors is not None:
+            rv = as_rotation_vectors(rotation_vectors, self._k)
         pp = None
         if pinned_positions is not None:
             if self._pinned is None:
                 raise ValueError("pinned_positions: given, but the deformer has no pinned vertices")
             pp = as_vertices(pinned_positions, "pinned_positions", rows=len(self._pinned))
         if out is None:
-            return self._core.deform(t, pp)
+            return self._core.deform(t, pp, rv)
         if not (
             isinstance(out, np.ndarray)
             and out.dtype == np.float32
@@ -120,7 +133,7 @@ class MaterialDeformer:
                 f"out: expected a writeable C-contiguous float32 array of shape ({self._n},3), "
                 f"got {got}"
             )
-        self._core.deform_into(t, pp, out)
+        self._core.deform_into(t, pp, out, rv)
         return out
 
     @property

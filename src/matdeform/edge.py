@@ -2,26 +2,19 @@
 
 from __future__ import annotations
 
-import math
-import numbers
-
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_index_set, as_stiffness, as_vertices
-
-
-def _scalar(x, name: str, lo: float, hi: float = math.inf, lo_open: bool = False) -> float:
-    """A finite real in [lo, hi] (or (lo, hi] when lo_open)."""
-    if isinstance(x, bool) or not isinstance(x, numbers.Real | np.floating | np.integer):
-        raise ValueError(f"{name}: expected a real number, got {type(x).__name__}")
-    v = float(x)
-    bad = not math.isfinite(v) or v > hi or (v <= lo if lo_open else v < lo)
-    if bad:
-        lo_s = f"({lo:g}" if lo_open else f"[{lo:g}"
-        hi_s = "inf)" if hi == math.inf else f"{hi:g}]"
-        raise ValueError(f"{name}: expected a finite value in {lo_s}, {hi_s}, got {v!r}")
-    return v
+from ._validate import (
+    as_count,
+    as_faces,
+    as_float_array,
+    as_index_set,
+    as_mesh_vertices,
+    as_real,
+    as_stiffness,
+    as_vertices,
+)
 
 
 class EdgeDeformer:
@@ -53,9 +46,9 @@ class EdgeDeformer:
 
     Defined behaviour: boundary edges, non-manifold edges and edges whose rest faces are
     degenerate have no bending term; vertices in no face, or in a connected part without a
-    constrained vertex, are passive (they keep their ``initial`` or rest position). A set-up that
-    leaves some vertex undetermined raises ValueError (e.g. stretch = 0 on a flat part with fewer
-    than three non-collinear constrained vertices).
+    constrained vertex, are passive (they stay at rest bit for bit, whatever ``initial`` holds).
+    A set-up that leaves some vertex undetermined raises ValueError (e.g. stretch = 0 on a flat
+    part with fewer than three non-collinear constrained vertices).
     """
 
     def __init__(
@@ -68,14 +61,14 @@ class EdgeDeformer:
         edge_weight=None,
         direction=None,
     ):
-        v = as_vertices(vertices)
+        v = as_mesh_vertices(vertices)
         n = v.shape[0]
         f = as_faces(faces, n)
         c = as_index_set(constrained, n, "constrained")
         if c.size == 0:
             raise ValueError("constrained: expected at least one vertex index, got shape (0,)")
-        lam = _scalar(stretch, "stretch", 0.0)
-        mu = _scalar(bend, "bend", 0.0, lo_open=True)
+        lam = as_real(stretch, "stretch", 0.0)
+        mu = as_real(bend, "bend", 0.0, lo_open=True)
         w = None
         if edge_weight is not None:
             e = len(_core.mesh_edges(f))
@@ -100,7 +93,7 @@ class EdgeDeformer:
 
         constrained_positions : (k,3) positions of the constrained vertices, in the order given
             to the constructor (mesh length unit).
-        iterations : int >= 1, the iteration budget.
+        iterations : int in [1, 2**31 - 1], the iteration budget.
         tol : float >= 0. Stop early when the largest vertex move of an iteration is below
             tol x the rest bounding-box diagonal; 0 runs exactly ``iterations``.
         p_stretch, p_bend : floats in [0,1] (paper Eq. 15): how far each iteration pulls the
@@ -110,33 +103,33 @@ class EdgeDeformer:
             stiffness: the energy gains -sum_i <g, v_i> (Eq. 8).
         initial : (n,3) float warm start (e.g. the previous result), or None for the rest mesh.
             Iterations compose: solve(x, iterations=a+b) equals solving ``b`` iterations from the
-            result of ``a``.
+            result of ``a``. When an anchor (constrained vertices joined by edges) turns by more
+            than 15 degrees from here to ``constrained_positions``, the first iteration carries
+            the anchors' fitted rotations over the mesh (docs/edge.md), so a large turn from
+            rest does not fold the mesh the wrong way round.
         relaxation : float in (0,1], omega: each iteration moves the free vertices by omega
-            times the E-M step (1 is the paper's iteration). The fixed points are the same; a
-            value below 1 (e.g. 0.8) damps the two-cycles the plain iteration can fall into
-            when constraints are far from rest (docs/edge.md).
+            times the E-M step (1 is the paper's iteration; a carried first step is taken in
+            full). The fixed points are the same; a value below 1 (e.g. 0.8) damps the
+            two-cycles the plain iteration can fall into when constraints are far from rest.
 
         ``last_iterations`` and ``last_move`` report the iterations run and the last move.
+        Positions beyond 1e50 rest diagonals of the rest mesh raise ValueError; a result that
+        would leave that range (gravity far too strong) raises RuntimeError. Either way the call
+        changes nothing.
         """
         x = as_vertices(constrained_positions, "constrained_positions", rows=len(self._constrained))
-        if isinstance(iterations, bool) or not isinstance(iterations, numbers.Integral):
-            raise ValueError(f"iterations: expected an integer >= 1, got {iterations!r}")
-        if iterations < 1:
-            raise ValueError(f"iterations: expected an integer >= 1, got {iterations}")
-        t = _scalar(tol, "tol", 0.0)
-        ps = _scalar(p_stretch, "p_stretch", 0.0, 1.0)
-        pb = _scalar(p_bend, "p_bend", 0.0, 1.0)
-        try:
-            g = np.asarray(gravity, dtype=np.float64)
-        except (TypeError, ValueError):
-            raise ValueError("gravity: expected a float array of shape (3,)") from None
+        its = as_count(iterations, "iterations", 1)
+        t = as_real(tol, "tol", 0.0)
+        ps = as_real(p_stretch, "p_stretch", 0.0, 1.0)
+        pb = as_real(p_bend, "p_bend", 0.0, 1.0)
+        g = as_float_array(gravity, "gravity")
         if g.shape != (3,):
             raise ValueError(f"gravity: expected shape (3,), got {g.shape}")
         if not np.isfinite(g).all():
             raise ValueError("gravity: contains NaN or infinity")
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
-        w = _scalar(relaxation, "relaxation", 0.0, 1.0, lo_open=True)
-        return self._core.solve(x, int(iterations), t, ps, pb, g, x0, w)
+        w = as_real(relaxation, "relaxation", 0.0, 1.0, lo_open=True)
+        return self._core.solve(x, its, t, ps, pb, g, x0, w)
 
     @property
     def last_iterations(self) -> int:

@@ -63,7 +63,5 @@ def mesh_edges(faces) -> np.ndarray:
 
     The order of per-edge arrays such as ``EdgeDeformer(edge_weight=...)``.
     """
-    f = as_int_array(faces, "faces", 2)
-    if f.shape[1] != 3:
-        raise ValueError(f"faces: expected triangles of shape (m,3), got {f.shape}")
+    f = as_triangles(faces)
     return _core.mesh_edges(f).astype(np.int64)

@@ -9,7 +9,16 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_index_set, as_int_array, as_vertices
+from ._validate import (
+    as_bool,
+    as_count,
+    as_faces,
+    as_index_set,
+    as_int_array,
+    as_mesh_vertices,
+    as_real,
+    as_vertices,
+)
 
 
 class PoseSpaceDeformer:
@@ -24,7 +33,8 @@ class PoseSpaceDeformer:
     Parameters
     ----------
     vertices : (n,3) float, rest positions (any length unit; the output uses the same unit).
-    faces : (m,3) int triangles. One connected surface, every vertex used, no zero-area face.
+    faces : (m,3) int triangles. Every vertex used, no zero-area face. A connected part with
+        no handle vertex, frozen face, frame face or rotational face stays exactly at rest.
     examples : (p,n,3) float, p >= 0 example poses with the connectivity of ``faces`` (a list of
         (n,3) arrays works too). With p = 0 this is a plain rotation-invariant handle deformer.
     handles : list of h int arrays of vertex indices (non-empty, disjoint): translational
@@ -97,7 +107,7 @@ class PoseSpaceDeformer:
         area_weights: bool = False,
         rotation_tolerance: float = 1e-6,
     ):
-        v = as_vertices(vertices)
+        v = as_mesh_vertices(vertices)
         f = as_faces(faces, v.shape[0])
         n, m = v.shape[0], f.shape[0]
         ex = _as_examples(examples, n)
@@ -119,40 +129,27 @@ class PoseSpaceDeformer:
                         f"handles[{j}]: vertex {int(h[fv[h]][0])} belongs to a frozen face, "
                         "which keeps its rest position"
                     )
-        for name, val in (
-            ("position_weight", position_weight),
-            ("rotation_weight", rotation_weight),
-            ("joint_weight", joint_weight),
-        ):
-            if not (np.isfinite(val) and val > 0):
-                raise ValueError(f"{name}: expected a finite value > 0, got {val!r}")
-        if not (np.isfinite(weight_regularization) and weight_regularization >= 0):
-            raise ValueError(
-                "weight_regularization: expected a finite value >= 0, "
-                f"got {weight_regularization!r}"
+        pos_w = as_real(position_weight, "position_weight", 0.0, lo_open=True)
+        rot_w = as_real(rotation_weight, "rotation_weight", 0.0, lo_open=True)
+        joint_w = as_real(joint_weight, "joint_weight", 0.0, lo_open=True)
+        ridge = as_real(weight_regularization, "weight_regularization", 0.0)
+        orient_w = as_real(orientation_weight, "orientation_weight", 0.0)
+        tol = as_real(rotation_tolerance, "rotation_tolerance", 0.0, 1.0, True, True)
+        angle = as_real(reliability_angle, "reliability_angle", 0.0, lo_open=True, allow_inf=True)
+        tn = as_count(transfer_neighbors, "transfer_neighbors", 1)
+        iters = as_count(rotation_iterations, "rotation_iterations", 1)
+        steps = as_count(gauge_steps, "gauge_steps", 1)
+        flags = [
+            as_bool(x, name)
+            for x, name in (
+                (handle_rotations, "handle_rotations"),
+                (convex_weights, "convex_weights"),
+                (area_weights, "area_weights"),
             )
-        tn = _as_index(transfer_neighbors, None, "transfer_neighbors")
-        if tn < 1:
-            raise ValueError(f"transfer_neighbors: expected an int >= 1, got {tn}")
-        for name, val in (
-            ("rotation_iterations", rotation_iterations),
-            ("gauge_steps", gauge_steps),
-        ):
-            if _as_index(val, None, name) < 1:
-                raise ValueError(f"{name}: expected an int >= 1, got {val}")
-        if rotation_energy not in ("chordal", "geodesic"):
+        ]
+        if not isinstance(rotation_energy, str) or rotation_energy not in ("chordal", "geodesic"):
             raise ValueError(
                 f"rotation_energy: expected 'chordal' or 'geodesic', got {rotation_energy!r}"
-            )
-        if not (0 < rotation_tolerance < 1):
-            raise ValueError(
-                f"rotation_tolerance: expected a value in (0, 1), got {rotation_tolerance!r}"
-            )
-        if not (reliability_angle > 0):
-            raise ValueError(f"reliability_angle: expected a value > 0, got {reliability_angle!r}")
-        if not (np.isfinite(orientation_weight) and orientation_weight >= 0):
-            raise ValueError(
-                f"orientation_weight: expected a finite value >= 0, got {orientation_weight!r}"
             )
         self._n, self._m, self._p = n, m, len(ex)
         self._sizes = [len(h) for h in hs]
@@ -167,20 +164,20 @@ class PoseSpaceDeformer:
             [tuple(int(x) for x in pr) for pr in rot],
             cs,
             fz.tolist(),
-            float(position_weight),
-            float(rotation_weight),
-            float(joint_weight),
-            bool(handle_rotations),
-            float(weight_regularization),
-            bool(convex_weights),
+            pos_w,
+            rot_w,
+            joint_w,
+            flags[0],
+            ridge,
+            flags[1],
             tn,
             rotation_energy,
-            int(rotation_iterations),
-            float(reliability_angle),
-            float(orientation_weight),
-            int(gauge_steps),
-            bool(area_weights),
-            float(rotation_tolerance),
+            iters,
+            angle,
+            orient_w,
+            steps,
+            flags[2],
+            tol,
         )
 
     def deform(self, handle_positions, rotations=None, frame_transform=None) -> np.ndarray:

@@ -114,8 +114,8 @@ class PyramidDeformer:
         progress : None, or a callable ``progress(iterations, step)`` (int, float: that
             iteration's largest vertex move as a fraction of the diagonal), called after an
             iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) and
-            after the last one, on the calling thread. An exception it raises ends the call and propagates. The result
-            does not depend on it.
+            after the last one, on the calling thread. An exception it raises ends the call and
+            propagates. The result does not depend on it.
 
         After the call ``last_iterations`` is the number of Newton iterations, ``last_step``
         the last one's largest vertex move (fraction of the diagonal; NaN after 0 iterations),
@@ -125,12 +125,12 @@ class PyramidDeformer:
         k = len(self._control)
         x = as_vertices(control_positions, "control_positions", rows=k)
         it = DEFAULT_ITERATIONS if iterations is None else as_count(iterations, "iterations")
-        t = as_real(tol, "tol")
+        t = as_real(tol, "tol", 0.0)
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
         w = as_real(scale_weight, "scale_weight", 0.0, 1e6)
         if progress is not None and not callable(progress):
             raise ValueError(f"progress: expected a callable or None, got {progress!r}")
-        every = as_real(progress_seconds, "progress_seconds")
+        every = as_real(progress_seconds, "progress_seconds", 0.0)
         return self._core.deform(x, it, t, x0, w, progress, every)
 
     def start(self, control_positions) -> np.ndarray:

@@ -50,6 +50,10 @@ def rest64(obj):
     return x.reshape(-1, 3).astype(np.float64)
 
 
+def shown_weights(obj):
+    return ps.weights_readout(session.cached_entry(obj))
+
+
 def example_bar(frame=True):
     """Bar with two example keys (bent +90 degrees; bent -90 degrees with a bulge), the bottom
     cap a Frame (or Follow Empty) anchor, the top cap a Follow Empty anchor; method Pose space."""
@@ -138,7 +142,7 @@ def test_bound_pose_equals_the_numpy_library_and_the_readout_its_weights(coarse)
     bind(obj)
     v = rest64(obj)
     np.testing.assert_array_equal(output(obj), v.astype(np.float32))  # bind pose: rest
-    w0 = ps.weights_readout(obj)
+    w0 = shown_weights(obj)
     assert [n for n, _w in w0] == ["(rest)", "Bend", "Bulge"]
     np.testing.assert_allclose([w for _n, w in w0], [1, 0, 0], atol=1e-9)  # rest = example 1
 
@@ -149,7 +153,7 @@ def test_bound_pose_equals_the_numpy_library_and_the_readout_its_weights(coarse)
     # the output key is float32: its round-off (~1e-7 of the size) is all that may differ
     assert err <= 1e-9 * diag(v) + 4 * np.finfo(np.float32).eps * np.abs(want).max(), err
     assert np.abs(got - v).max() > 0.3  # it moved
-    readout = ps.weights_readout(obj)
+    readout = shown_weights(obj)
     w = np.array([x for _n, x in readout])
     np.testing.assert_allclose(w, weights, atol=1e-12)
     assert abs(w.sum() - 1.0) < 1e-9
@@ -187,8 +191,8 @@ def test_anchors_posed_at_an_example_reproduce_that_shape_key(key):
     got = output(obj).astype(np.float64)
     err = np.abs(got - target).max() / diag(v)
     assert err <= 1e-6, err  # the issue's bound; float32 keys and Empty matrices: ~1e-8 here
-    names = [n for n, _w in ps.weights_readout(obj)]
-    w = np.array([x for _n, x in ps.weights_readout(obj)])
+    names = [n for n, _w in shown_weights(obj)]
+    w = np.array([x for _n, x in shown_weights(obj)])
     np.testing.assert_allclose(w, np.eye(3)[names.index(key)], atol=1e-6)
     if key == "Bulge":  # the bulge came along: the middle section is wider than at rest
         mid = np.abs(v[:, 2]) < 0.1
@@ -233,7 +237,7 @@ def test_edit_mode_change_and_added_or_muted_keys_make_the_bind_stale():
     pose_top(top)
     assert "example shape keys" in session.stale_reason(obj).lower()
     bind(obj)  # rebind with one key fewer
-    assert [n for n, _w in ps.weights_readout(obj)] == ["(rest)", "Bend"]
+    assert [n for n, _w in shown_weights(obj)] == ["(rest)", "Bend"]
 
 
 def test_without_example_keys_bind_is_an_error_and_changes_nothing():
@@ -276,7 +280,7 @@ def test_a_filtered_key_is_no_example():
     obj, top, bottom = example_bar()
     obj.material_deform.learn_filter = "bend"
     bind(obj)
-    assert [n for n, _w in ps.weights_readout(obj)] == ["(rest)", "Bend"]
+    assert [n for n, _w in shown_weights(obj)] == ["(rest)", "Bend"]
     obj.material_deform.learn_filter = ""  # the example set changed: stale
     assert "example shape keys" in session.stale_reason(obj)
 
@@ -341,7 +345,7 @@ def test_bake_writes_the_live_pose_space_results():
     for f in (1, 2, 3):
         scene.frame_set(f)
         live[f] = output(obj).copy()
-        weights[f] = [w for _n, w in ps.weights_readout(obj)]
+        weights[f] = [w for _n, w in shown_weights(obj)]
     assert np.abs(live[3] - live[1]).max() > 0.5
     assert weights[1] == pytest.approx([1, 0, 0], abs=1e-9) and weights[3][0] < 0.9
     scene.frame_set(1)
@@ -410,7 +414,7 @@ def test_panel_draws_the_settings_and_the_weights_and_every_label_fits():
     log = draw_panel()
     assert "coarse_faces" in log
     texts = [x[1] for x in log if isinstance(x, tuple)]
-    shown = {n: f"{w:.2f}" for n, w in ps.weights_readout(obj)}
+    shown = {n: f"{w:.2f}" for n, w in shown_weights(obj)}
     for n, w in shown.items():
         assert n in texts and w in texts
     assert cut_texts(draw_panel.tree) == []

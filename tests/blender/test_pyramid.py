@@ -212,7 +212,7 @@ def test_live_updates_spend_the_budget_and_keep_settling():
     top.empty.rotation_euler.y = 0.8
     update()  # one live update: one Newton iteration, not converged yet
     key = obj.as_pointer()
-    assert key in session._unsettled
+    assert key in session.state._unsettled
     entry = session.entry_for(obj, bpy.context.scene)
     assert entry.state["iterations"] == 1 and entry.state["move"] >= 1e-8
     first = output(obj).copy()

@@ -101,7 +101,7 @@ def test_every_label_fits_the_default_sidebar_width():
 
 
 def test_long_messages_wrap_to_the_sidebar_width():
-    msg = session._diff_reason(tube(), ("a", "b", "c", "d"), ("x", "y", "z", "w"))
+    msg = session.binding._diff_reason(tube(), ("a", "b", "c", "d"), ("x", "y", "z", "w"))
     lines = ui.wrap(msg, ui.DEFAULT_SIDEBAR_WIDTH - 56 - 26)
     assert len(lines) >= 3 and " ".join(lines) == msg
 

@@ -153,12 +153,12 @@ def test_undo_bind_unbinds_and_drops_the_solver():
     before = rest(obj).copy()
     push("anchors")
     assert run(bpy.ops.object.material_deform_bind) == {"FINISHED"}
-    assert obj.as_pointer() in session._cache
+    assert obj.as_pointer() in session.state._cache
 
     obj = undo()
     assert not obj.material_deform.bound and obj.data.shape_keys is None
     assert rest(obj).tobytes() == before.tobytes()
-    assert obj.as_pointer() not in session._cache  # no solver kept for a bind that is gone
+    assert obj.as_pointer() not in session.state._cache  # no solver kept for a bind that is gone
     top_empty(obj).location.x += 1.0
     update()  # the live handler must leave an unbound object alone
     assert obj.data.shape_keys is None and session.stale_reason(obj) == ""

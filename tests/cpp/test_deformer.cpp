@@ -207,3 +207,105 @@ TEST(Deformer, ConcurrentCallsMatchSerialOnesExactly) {
   EXPECT_EQ(shared->substitution_threads(), 2);  // the threaded substitution was reached
   matdeform::set_num_threads(before);
 }
+
+namespace {
+// Bar along x (48 segments, length 12) with an anchor at each end cap, uniform stiffness.
+struct TwistBar {
+  Vertices V;
+  Faces F;
+  std::unique_ptr<MaterialDeformer> d;
+  TwistBar() {
+    meshes::make_bar(48, 12.0, &V, &F);
+    const int m = static_cast<int>(F.rows());
+    const DualEdges dual = dual_edges(F);
+    d = std::make_unique<MaterialDeformer>(V, F, AnchorList{{m - 4, m - 3}, {m - 2, m - 1}},
+                                           Eigen::VectorXd::Ones(m),
+                                           RowMatrix::Ones(dual.pairs.rows(), 1));
+  }
+};
+}  // namespace
+
+TEST(Deformer, RotationVectorsBlendTurnsPastHalfATurn) {
+  // The tip turns by 3 pi (540 degrees) about the bar's axis: each face's transform is Eq. 2
+  // with the given branch, exp(w_f * 3 pi x) (the principal log would give exp(w_f * pi x)),
+  // and the middle ring turns by about 270 degrees.
+  TwistBar bar;
+  const double total = 3 * M_PI;
+  const std::vector<Eigen::Matrix4d> T = {Eigen::Matrix4d::Identity(),
+                                          affine(1.0, total, {1, 0, 0}, {0, 0, 0})};
+  Vectors3 rv = Vectors3::Zero(2, 3);
+  rv(1, 0) = total;
+  const Vertices X = bar.d->deform(T, true, nullptr, &rv);
+  const Matrix3Array Tf = bar.d->face_transforms();
+  const RowMatrix& W = bar.d->weights();
+  double worst = 0.0;
+  for (size_t f = 0; f < Tf.size(); ++f) {
+    const Eigen::Matrix3d expect =
+        Eigen::AngleAxisd(W(static_cast<Eigen::Index>(f), 1) * total, Eigen::Vector3d::UnitX())
+            .toRotationMatrix();
+    worst = std::max(worst, (Tf[f] - expect).cwiseAbs().maxCoeff());
+  }
+  EXPECT_LT(worst, 1e-12);
+  // Ring 24 of 48 (vertices 96-99), corners at angles 225, 315, 45, 135 degrees at rest: each
+  // corner turned by 270 degrees +- 2 (harmonic weights on the bar are linear along it).
+  for (int v = 96; v < 100; ++v) {
+    const double rest = std::atan2(bar.V(v, 2), bar.V(v, 1));
+    const double now = std::atan2(X(v, 2), X(v, 1));
+    const double turn = std::remainder(now - rest - 1.5 * M_PI, 2 * M_PI) + 1.5 * M_PI;
+    EXPECT_NEAR(turn, 1.5 * M_PI, 2.0 * M_PI / 180.0) << "vertex " << v;
+  }
+}
+
+TEST(Deformer, PrincipalRotationVectorsGiveBitIdenticalResults) {
+  // The vectors deform() would compute itself (rotation_log of each polar factor) give the same
+  // bits as none given, on the similarity path and with a non-uniformly scaled anchor.
+  TwistBar bar;
+  for (const bool scaled : {false, true}) {
+    std::vector<Eigen::Matrix4d> T = {affine(1.1, 0.4, {0, 1, 1}, {0, 1, 0}),
+                                      affine(0.9, 2.9, {1, 0.2, 0}, {1, 0, 2})};
+    if (scaled) T[1].topLeftCorner<3, 3>() *= Eigen::Vector3d(1.3, 1.0, 0.8).asDiagonal();
+    Vectors3 rv(2, 3);
+    for (int a = 0; a < 2; ++a) {
+      rv.row(a) = transform_log(T[static_cast<size_t>(a)].topLeftCorner<3, 3>()).rotation;
+    }
+    const Vertices X0 = bar.d->deform(T, true, nullptr);
+    const Vertices X1 = bar.d->deform(T, true, nullptr, &rv);
+    EXPECT_TRUE((X0.array() == X1.array()).all()) << "scaled=" << scaled;
+    std::vector<float> f0(static_cast<size_t>(3 * X0.rows())), f1(f0.size());
+    bar.d->deform(T, true, nullptr, f0.data());
+    bar.d->deform(T, true, nullptr, f1.data(), &rv);
+    EXPECT_EQ(f0, f1);
+  }
+}
+
+TEST(Deformer, InconsistentRotationVectorsThrowAndChangeNothing) {
+  TwistBar bar;
+  const std::vector<Eigen::Matrix4d> T = {Eigen::Matrix4d::Identity(),
+                                          affine(1.0, 1.0, {1, 0, 0}, {0, 0, 0})};
+  Vectors3 good = Vectors3::Zero(2, 3);
+  good(1, 0) = 1.0 + 2 * M_PI;
+  const Vertices X = bar.d->deform(T, true, nullptr, &good);
+  const Matrix3Array before = bar.d->face_transforms();
+  std::vector<float> out(static_cast<size_t>(3 * X.rows()), 7.0f);
+  // Off by 2e-4 rad (twice the tolerance), the other sign, another axis, the wrong number of
+  // turns about another axis, NaN, too long to exponentiate, the wrong number of rows.
+  std::vector<Vectors3> bad(6, good);
+  bad[0](1, 0) += 2e-4;
+  bad[1](1, 0) = -1.0;
+  bad[2].row(1) << 0, 1.0, 0;
+  bad[3].row(0) << 0, 2 * M_PI, 0.5;
+  bad[4](0, 2) = std::nan("");
+  bad[5](0, 1) = 1e200;
+  bad.push_back(Vectors3::Zero(3, 3));
+  for (size_t i = 0; i < bad.size(); ++i) {
+    EXPECT_THROW(bar.d->deform(T, true, nullptr, &bad[i]), std::invalid_argument) << i;
+    EXPECT_THROW(bar.d->deform(T, true, nullptr, out.data(), &bad[i]), std::invalid_argument);
+  }
+  const Matrix3Array after = bar.d->face_transforms();
+  for (size_t f = 0; f < before.size(); ++f) EXPECT_EQ(before[f], after[f]);
+  for (float x : out) EXPECT_EQ(x, 7.0f);
+  // Within the tolerance: accepted (half of it off).
+  Vectors3 close = good;
+  close(1, 0) += 0.5e-4;
+  EXPECT_NO_THROW(bar.d->deform(T, true, nullptr, &close));
+}

@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 #include <cmath>
+#include <complex>
 #include <limits>
 #include <set>
 #include <stdexcept>
@@ -237,10 +238,54 @@ TEST(EdgeDeformer, RigidlyMovedConstraintsConvergeToTheMovedRestMesh) {
     EdgeDeformerOptions o;
     o.stretch = stretch;
     EdgeDeformer d(V, F, c, o);
-    const Vertices X = d.solve(rows_of(moved, c), iterations(5000, 1e-14));
+    // From rest the end rings' fitted rotation carries every edge: the first step is the
+    // rigid motion up to round-off, the next ones only confirm it.
+    Vertices X = d.solve(rows_of(moved, c), iterations(5000, 1e-14));
+    EXPECT_LT(max_diff(X, moved), 1e-11 * d.diagonal()) << stretch;
+    EXPECT_LE(d.last_iterations(), 3);
+    // From a bent start with the rings in place nothing is carried: the iteration finds it.
+    Vertices bent = moved;
+    for (Eigen::Index v = 0; v < V.rows(); ++v) bent(v, 1) += 0.1 * std::sin(3.0 * V(v, 0));
+    for (int k : c) bent.row(k) = moved.row(k);
+    X = d.solve(rows_of(moved, c), iterations(5000, 1e-14), &bent);
     EXPECT_LT(max_diff(X, moved), 1e-9 * d.diagonal()) << stretch;
     EXPECT_LT(d.last_iterations(), 5000);
     EXPECT_GT(d.last_iterations(), 5);  // not solved by one linear step
+  }
+}
+
+// Base ring fixed, tip ring turned about the axis: the middle ring turns by half the tip, the
+// short way. From rest the plain first step shears the turn in and pushes rings through the
+// axis (the tube then settles a half turn the wrong way); the carried first step does not.
+TEST(EdgeDeformer, TwistedTubeTurnsItsMiddleByHalfTheTip) {
+  Vertices V;
+  Faces F;
+  tube(40, 16, 1.0, 16.0, &V, &F);
+  std::vector<int> c;
+  for (int k = 0; k < 16; ++k) c.push_back(k);
+  for (int k = 0; k < 16; ++k) c.push_back(40 * 16 + k);
+  struct Case {
+    double stretch, relaxation, tip_degrees;
+  };
+  for (const Case& t : {Case{1e-4, 1.0, 120.0}, Case{1e-2, 0.8, 170.0}, Case{1e-4, 1.0, -175.0}}) {
+    EdgeDeformerOptions o;
+    o.stretch = t.stretch;
+    EdgeDeformer d(V, F, c, o);
+    const Eigen::Matrix3d R =
+        Eigen::AngleAxisd(t.tip_degrees * M_PI / 180.0, Eigen::Vector3d::UnitX())
+            .toRotationMatrix();
+    Vertices pos = rows_of(V, c);
+    for (int k = 16; k < 32; ++k) pos.row(k) = pos.row(k) * R.transpose();
+    EdgeSolveOptions s = iterations(3000, 1e-9);
+    s.relaxation = t.relaxation;
+    const Vertices X = d.solve(pos, s);
+    EXPECT_LT(d.last_iterations(), 3000);
+    std::complex<double> turn = 0.0;
+    for (int k = 0; k < 16; ++k) {
+      const int v = 20 * 16 + k;
+      turn += std::complex<double>(X(v, 1), X(v, 2)) / std::complex<double>(V(v, 1), V(v, 2));
+    }
+    EXPECT_NEAR(std::arg(turn) * 180.0 / M_PI, t.tip_degrees / 2, 0.01) << t.tip_degrees;
   }
 }
 
@@ -345,7 +390,8 @@ TEST(EdgeDeformer, PartsWithoutConstraintsAndLooseVerticesArePassive) {
   EdgeSolveOptions s = iterations(4);
   s.gravity << 0, 0, -1;
   const Vertices X = d.solve(pos, s, &init);
-  EXPECT_EQ(max_diff(X.bottomRows(B.rows() + 1), init.bottomRows(B.rows() + 1)), 0.0);
+  // at rest bit for bit, whatever the start holds: the rule for every method
+  EXPECT_EQ(max_diff(X.bottomRows(B.rows() + 1), V.bottomRows(B.rows() + 1)), 0.0);
   EXPECT_GT(max_diff(X.topRows(A.rows()), V.topRows(A.rows())), 0.1);
 }
 
@@ -397,29 +443,44 @@ TEST(EdgeDeformer, ThreadsAndBaselineKernelsAgree) {
   Vertices V;
   Faces F;
   bumpy_grid(90, 90, &V, &F);  // large enough for the parallel paths
-  std::vector<int> c = corners(90, 90);
-  c.push_back(45 * 91 + 45);
-  Vertices pos = rows_of(V, c);
-  pos(4, 2) += 20.0;
   EdgeDeformerOptions o;
   o.stretch = 1e-3;
-  const int threads = num_threads();
-  set_num_threads(1);
-  EdgeDeformer d(V, F, c, o);
   EdgeSolveOptions s = iterations(3);
   s.p_bend = 0.8;
-  const Vertices serial = d.solve(pos, s);
-  set_num_threads(2);
-  const Vertices parallel = d.solve(pos, s);
-  set_num_threads(threads);
-  EXPECT_GT(max_diff(serial, V), 5.0);
-  EXPECT_LT(max_diff(serial, parallel), 1e-12 * d.diagonal());
-  if (cpu_has_avx2_fma()) {
-    const bool before = set_avx2_kernels_enabled(false);
-    const Vertices base = d.solve(pos, s);
-    set_avx2_kernels_enabled(before);
-    EXPECT_LT(max_diff(serial, base), 1e-10 * d.diagonal());
+  const int threads = num_threads();
+  auto check = [&](const std::vector<int>& c, const Vertices& pos) {
+    set_num_threads(1);
+    EdgeDeformer d(V, F, c, o);
+    const Vertices serial = d.solve(pos, s);
+    set_num_threads(2);
+    const Vertices parallel = d.solve(pos, s);
+    set_num_threads(threads);
+    EXPECT_GT(max_diff(serial, V), 5.0);
+    EXPECT_LT(max_diff(serial, parallel), 1e-12 * d.diagonal());
+    if (cpu_has_avx2_fma()) {
+      const bool before = set_avx2_kernels_enabled(false);
+      const Vertices base = d.solve(pos, s);
+      set_avx2_kernels_enabled(before);
+      EXPECT_LT(max_diff(serial, base), 1e-10 * d.diagonal());
+    }
+  };
+  const int centre = 45 * 91 + 45;
+  std::vector<int> c = corners(90, 90);
+  c.push_back(centre);
+  Vertices pos = rows_of(V, c);
+  pos(4, 2) += 20.0;
+  check(c, pos);
+  // The carried first step: a turned anchor (the centre vertex and its ring).
+  c.pop_back();
+  for (int dv : {0, -1, 1, -91, 91, -92, 92, -90, 90}) c.push_back(centre + dv);
+  const Eigen::Matrix3d R =
+      Eigen::AngleAxisd(1.2, Eigen::Vector3d(0.3, 1, 0.2).normalized()).toRotationMatrix();
+  pos = rows_of(V, c);
+  for (Eigen::Index k = 4; k < pos.rows(); ++k) {
+    pos.row(k) = (pos.row(k) - V.row(centre)) * R.transpose() + V.row(centre);
+    pos(k, 2) += 10.0;
   }
+  check(c, pos);
 }
 
 TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
@@ -455,6 +516,13 @@ TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
   EXPECT_THROW(make(c, o), std::invalid_argument);
   o.direction = Vertices::Ones(V.rows(), 3);
   o.direction(2, 1) = std::nan("");
+  EXPECT_THROW(make(c, o), std::invalid_argument);
+  // stiffness times weight beyond 1e300 (each alone may be that large)
+  o = ok;
+  o.stretch = 1e300;
+  o.bend = 1e300;
+  EXPECT_NO_THROW(make(c, o));
+  o.edge_weight = Eigen::VectorXd::Constant(mesh_edges(F).rows(), 10.0);
   EXPECT_THROW(make(c, o), std::invalid_argument);
   // a flat sheet with stretch 0 and one constrained vertex is not determined
   o = ok;
@@ -494,6 +562,23 @@ TEST(EdgeDeformer, BadInputThrowsAndChangesNothing) {
   s = iterations(2);
   s.gravity << 0, std::nan(""), 0;
   EXPECT_THROW(d.solve(rows_of(V, c), s), std::invalid_argument);
+  // positions beyond 1e50 mesh sizes of the rest mesh, as targets or as the start
+  Vertices far = rows_of(V, c);
+  far(2, 0) += 1e52 * d.diagonal();
+  EXPECT_THROW(d.solve(far, iterations(2)), std::invalid_argument);
+  far = rows_of(V, c);
+  far(2, 0) += 0.9e50 * d.diagonal();
+  EXPECT_NO_THROW(d.solve(far, iterations(2)));
+  Vertices far_start = V;
+  far_start(7, 2) = -1e200;
+  EXPECT_THROW(d.solve(rows_of(V, c), iterations(2), &far_start), std::invalid_argument);
+  // gravity that throws the iterate out of that range: refused after the fact
+  d.solve(rows_of(V, c), iterations(2));
+  const double move = d.last_move();
+  s = iterations(3);
+  s.gravity << 0, 0, -1e300;
+  EXPECT_THROW(d.solve(rows_of(V, c), s), std::runtime_error);
+  EXPECT_EQ(d.last_move(), move);
   EXPECT_EQ(d.last_iterations(), 2);  // the failed calls changed nothing
   EXPECT_EQ(max_diff(d.solve(rows_of(V, c), iterations(2)), X), 0.0);
 }

@@ -6,6 +6,7 @@
 #include <cmath>
 #include <map>
 #include <numeric>
+#include <optional>
 #include <random>
 #include <stdexcept>
 
@@ -514,12 +515,6 @@ TEST(PoseSpace, BadInputThrows) {
   o = none;
   o.position_weight = 0.0;
   EXPECT_THROW(make(ex, bar.handles, o), std::invalid_argument);
-  // Disconnected: two bars.
-  Vertices V2(2 * bar.V.rows(), 3);
-  V2 << bar.V, bar.V.rowwise() + Eigen::RowVector3d(0, 5, 0);
-  Faces F2(2 * bar.F.rows(), 3);
-  F2 << bar.F, bar.F.array() + static_cast<int>(bar.V.rows());
-  EXPECT_THROW(PoseSpaceDeformer(V2, F2, {}, {{0, 1, 2}}), std::invalid_argument);
   // deform() inputs.
   PoseSpaceDeformer d(bar.V, bar.F, ex, bar.handles);
   std::vector<Vertices> hp = positions_of(bar.V, bar.handles);
@@ -534,4 +529,96 @@ TEST(PoseSpace, BadInputThrows) {
   EXPECT_THROW(d.deform(hp, &rot), std::invalid_argument);  // no rotational pairs
   Eigen::Matrix4d T = Eigen::Matrix4d::Identity();
   EXPECT_THROW(d.deform(hp, nullptr, &T), std::invalid_argument);  // no frame face
+}
+
+// Handle targets or examples so far out that squares overflow gave NaN positions and weights;
+// now they throw and the deformer keeps its last results. Within the reach (1e50 mesh sizes)
+// far targets give finite weights that still sum to 1 (the shifted kernel values).
+TEST(PoseSpace, PositionsBeyondDoubleRangeThrowInsteadOfNan) {
+  Bar bar(10);
+  const std::vector<Vertices> ex = {bar.V, bent(bar.V, 1.0, bar.length)};
+  PoseSpaceDeformer d(bar.V, bar.F, ex, bar.handles);
+  const std::vector<Vertices> hp = positions_of(bent(bar.V, 0.5, bar.length), bar.handles);
+  const Vertices X0 = d.deform(hp, nullptr);
+  const Eigen::VectorXd w0 = d.example_weights();
+  for (const double s : {1e155, 1e300}) {
+    std::vector<Vertices> scaled = hp, moved = hp;
+    for (Vertices& p : scaled) p *= s;
+    for (Vertices& p : moved) p.array() += s;
+    EXPECT_THROW(d.deform(scaled, nullptr), std::invalid_argument);
+    EXPECT_THROW(d.deform(moved, nullptr), std::invalid_argument);
+    EXPECT_THROW(d.pose_weights(moved, nullptr), std::invalid_argument);
+  }
+  EXPECT_EQ(d.example_weights(), w0);
+  EXPECT_EQ(d.deform(hp, nullptr), X0);
+  std::vector<Vertices> far = hp;
+  for (Vertices& p : far) p *= 1e40;
+  const Vertices Xf = d.deform(far, nullptr);
+  const Eigen::VectorXd wf = d.example_weights();
+  EXPECT_TRUE(Xf.allFinite());
+  EXPECT_NEAR(wf.sum(), 1.0, 1e-12);
+  EXPECT_LT(wf.cwiseAbs().maxCoeff(), 3.0);
+  std::vector<Vertices> huge = ex;
+  huge[1] *= 1e155;
+  EXPECT_THROW(PoseSpaceDeformer(bar.V, bar.F, huge, bar.handles), std::invalid_argument);
+}
+
+// Several parts: a part with no control (handle, frozen face, frame, rotational face) stays at
+// rest bit for bit; the others are solved as if alone: at an example (all handles moved by one
+// rigid motion) each controlled part is that example, rigidly moved, at single and multiple
+// resolution.
+TEST(PoseSpace, PartsWithoutControlStayAtRestTheOthersAreSolved) {
+  Bar bar(20);
+  const int nb = static_cast<int>(bar.V.rows()), fb = static_cast<int>(bar.F.rows());
+  auto three = [&](const Vertices& a, const Vertices& b, const Vertices& c) {
+    Vertices out(3 * nb, 3);
+    out << a, b.rowwise() + Eigen::RowVector3d(0, 4, 0), c.rowwise() + Eigen::RowVector3d(0, 8, 0);
+    return out;
+  };
+  const Vertices V = three(bar.V, bar.V, bar.V);
+  Faces F(3 * fb, 3);
+  F << bar.F, bar.F.array() + nb, bar.F.array() + 2 * nb;
+  // Bars 0 and 1 bend in the examples; bar 2 has no handle and bends too (it must not follow).
+  const Vertices b1 = bent(bar.V, 1.0, bar.length), b2 = bent_z(bar.V, -0.8, bar.length);
+  const std::vector<Vertices> ex = {V, three(b1, b2, b1), three(b2, b1, b2)};
+  std::vector<std::vector<int>> H = {bar.handles[0], bar.handles[2], bar.handles[0],
+                                     bar.handles[2]};
+  for (int v : {2, 3}) {
+    for (int& i : H[v]) i += nb;
+  }
+  const Eigen::Matrix3d G = Eigen::AngleAxisd(0.7, Eigen::Vector3d(1, 2, 3).normalized()).matrix();
+  const Eigen::Vector3d t(1.0, -2.0, 0.5);
+  for (const std::optional<int> coarse : {std::optional<int>(), std::optional<int>(200)}) {
+    PoseSpaceOptions o;
+    o.coarse_faces = coarse;
+    PoseSpaceDeformer d(V, F, ex, H, o);
+    for (int k = 0; k < 3; ++k) {
+      const Vertices target = rigid(ex[k], G, t);
+      const Vertices X = d.deform(positions_of(target, H), nullptr);
+      const Eigen::VectorXd w = d.example_weights();
+      EXPECT_NEAR((w - Eigen::VectorXd::Unit(3, k)).cwiseAbs().maxCoeff(), 0.0, 1e-9);
+      const double err = (X.topRows(2 * nb) - target.topRows(2 * nb)).cwiseAbs().maxCoeff();
+      EXPECT_LT(err, (coarse ? 1e-6 : 1e-9) * diagonal(V)) << "example " << k;
+      EXPECT_TRUE(X.bottomRows(nb) == V.bottomRows(nb));  // bit for bit
+    }
+    // Between the examples too: the free bar stays, the others move.
+    const Vertices mid = rigid(0.5 * (ex[1] + ex[2]), G, t);
+    const Vertices X = d.deform(positions_of(mid, H), nullptr);
+    EXPECT_TRUE(X.bottomRows(nb) == V.bottomRows(nb));
+    EXPECT_GT((X.topRows(nb) - V.topRows(nb)).cwiseAbs().maxCoeff(), 1.0);
+  }
+  // No control anywhere: the rest mesh.
+  PoseSpaceDeformer none(V, F, {}, {});
+  EXPECT_TRUE(none.deform({}, nullptr) == V);
+  // A part held only by a frozen face keeps that face and follows the pose with it.
+  PoseSpaceOptions o;
+  o.frozen = {2 * fb};
+  PoseSpaceDeformer frozen(V, F, ex, {H[0], H[1]}, o);
+  const Vertices Xf = frozen.deform(positions_of(ex[1], {H[0], H[1]}), nullptr);
+  for (int l = 0; l < 3; ++l) EXPECT_TRUE(Xf.row(F(2 * fb, l)) == V.row(F(2 * fb, l)));
+  EXPECT_GT((Xf.bottomRows(nb) - V.bottomRows(nb)).cwiseAbs().maxCoeff(), 1.0);
+  // A coarse count above the solved parts' faces is refused.
+  o = PoseSpaceOptions();
+  o.coarse_faces = fb + 10;
+  EXPECT_THROW(PoseSpaceDeformer(V, F, ex, {H[0], H[1]}, o), std::invalid_argument);
 }

@@ -45,6 +45,23 @@ TEST(Transforms, RotationExpIsExactOnBothSidesOfTheSeriesRange) {
   }
 }
 
+TEST(Transforms, RotationExpOfManyTurnsIsExact) {
+  // Past the series range the whole turns are taken out of the vector first (no sin/cos): as
+  // accurate as the axis-angle matrix, whose own sin/cos carry an error of ~eps * angle.
+  std::mt19937 rng(6);
+  std::normal_distribution<double> g;
+  const double angles[] = {2 * M_PI + 0.1, 3 * M_PI, 3 * M_PI + 1e-9, 20 * M_PI + 1, -7.5, 1000.3};
+  for (double theta : angles) {
+    for (int t = 0; t < 10; ++t) {
+      const Eigen::Vector3d axis = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(theta, axis).toRotationMatrix();
+      EXPECT_LT((rotation_exp(theta * axis) - R).cwiseAbs().maxCoeff(),
+                2e-15 * std::max(1.0, std::abs(theta)))
+          << "theta=" << theta;
+    }
+  }
+}
+
 TEST(Transforms, RotationLogRoundTripIncludingNearPi) {
   std::mt19937 rng(2);
   std::normal_distribution<double> g;
@@ -457,4 +474,112 @@ TEST(Transforms, AnisotropicBlendSeparatesAxisComponents) {
   const Eigen::Matrix3d expect =
       std::pow(2.0, 0.5) * rotation_exp(Eigen::Vector3d(0, 0, c));  // mean weight 0.5
   EXPECT_LT((out[0] - expect).norm(), 1e-12);
+}
+
+TEST(Transforms, RotationLogNearPicksTheWholeTurnsNearest) {
+  // Every log of R is (theta + 2 pi n) u; from a reference up to ~1 rad away, the one with the
+  // n it came from, also at theta = pi (where the principal axis may flip) and theta = 0.
+  std::mt19937 rng(11);
+  std::normal_distribution<double> g;
+  // (Within the tolerance of the identity the axis is noise: the next test.)
+  const double angles[] = {1e-3, 0.3, 2.0, M_PI - 1e-9, M_PI};
+  for (double theta : angles) {
+    for (int n = -3; n <= 3; ++n) {
+      const Eigen::Vector3d u = Eigen::Vector3d(g(rng), g(rng), g(rng)).normalized();
+      const Eigen::Vector3d v = (theta + 2 * M_PI * n) * u;
+      const Eigen::Matrix3d R = Eigen::AngleAxisd(theta, u).toRotationMatrix();
+      const Eigen::Vector3d near = v + 0.5 * Eigen::Vector3d(g(rng), g(rng), g(rng)) / 1.8;
+      const Eigen::Vector3d w = rotation_log_near(R, near);
+      EXPECT_LT((w - v).norm(), 1e-9) << "theta=" << theta << " n=" << n;
+      EXPECT_LT(rotation_vector_mismatch(w, R), 1e-9);
+    }
+  }
+}
+
+TEST(Transforms, RotationLogNearKeepsTheAxisAtAWholeTurn) {
+  // After a full turn about z, float noise makes R's own axis arbitrary: within the tolerance
+  // of the identity, near's axis and turns are kept (and the part of R along it).
+  const Eigen::Vector3d z(0, 0, 1), x(1, 0, 0);
+  const Eigen::Vector3d near = 2 * M_PI * z + Eigen::Vector3d(0, 0, 0.01);
+  const Eigen::Matrix3d noise = Eigen::AngleAxisd(3e-7, x).toRotationMatrix();
+  Eigen::Vector3d w = rotation_log_near(noise, near);
+  EXPECT_LT((w - 2 * M_PI * z).norm(), 1e-12);
+  EXPECT_LT(rotation_vector_mismatch(w, noise), 3.1e-7);
+  const Eigen::Matrix3d along = Eigen::AngleAxisd(5e-5, z).toRotationMatrix();
+  w = rotation_log_near(along, near);
+  EXPECT_LT((w - (2 * M_PI + 5e-5) * z).norm(), 1e-12);
+  EXPECT_LT(rotation_vector_mismatch(w, along), 1e-12);
+  // Beyond the tolerance the rotation has its own axis, and its logs lie on that axis only
+  // (the exp map is singular at a whole turn): documented, the nearest exact log is taken.
+  const Eigen::Matrix3d tilt = Eigen::AngleAxisd(1e-3, x).toRotationMatrix();
+  w = rotation_log_near(tilt, near);
+  EXPECT_LT(rotation_vector_mismatch(w, tilt), 1e-12);
+  EXPECT_LT(w.cross(x).norm(), 1e-12);
+}
+
+namespace {
+// Frames of k = 2 sequences, frame-major: sequence 0 turns about `axis` by angle(t), sequence 1
+// by -2 angle(t) about y, each rounded to float32 and (sequence 0) scaled along its own axes.
+Matrix3Array two_sequences(const Eigen::Vector3d& axis, const std::vector<double>& angle) {
+  Matrix3Array out;
+  for (double a : angle) {
+    Eigen::Matrix3d R0 = Eigen::AngleAxisd(a, axis).toRotationMatrix();
+    R0 = R0 * Eigen::Vector3d(1.3, 1.0, 0.8).asDiagonal();
+    out.push_back(R0.cast<float>().cast<double>());
+    out.push_back(Eigen::AngleAxisd(-2 * a, Eigen::Vector3d::UnitY()).toRotationMatrix());
+  }
+  return out;
+}
+}  // namespace
+
+TEST(Transforms, UnwrapRotationsFollowsTurnsOfAnyLength) {
+  // 0 .. 4 pi in steps of 60 degrees (sequence 1: 120 degrees), through whole turns where the
+  // axis is float noise: the closed form is angle * axis; sequence 0 is float32 and scaled
+  // (its rotation factor is used).
+  const Eigen::Vector3d axis = Eigen::Vector3d(1, -2, 0.5).normalized();
+  std::vector<double> angle;
+  for (int t = 0; t <= 12; ++t) angle.push_back(t * M_PI / 3);
+  const std::vector<Eigen::Vector3d> v = unwrap_rotations(two_sequences(axis, angle), 2, {});
+  ASSERT_EQ(v.size(), 2 * angle.size());
+  for (size_t t = 0; t < angle.size(); ++t) {
+    EXPECT_LT((v[2 * t] - angle[t] * axis).norm(), 2e-6) << "frame " << t;
+    EXPECT_LT((v[2 * t + 1] + 2 * angle[t] * Eigen::Vector3d::UnitY()).norm(), 1e-9);
+  }
+  // A start picks frame 0's branch: the same motion one turn further on.
+  const std::vector<Eigen::Vector3d> start = {(2 * M_PI + 0.2) * axis,
+                                              Eigen::Vector3d(0, -2 * M_PI, 0)};
+  const std::vector<Eigen::Vector3d> w = unwrap_rotations(two_sequences(axis, angle), 2, start);
+  for (size_t t = 0; t < angle.size(); ++t) {
+    EXPECT_LT((w[2 * t] - (angle[t] + 2 * M_PI) * axis).norm(), 2e-6) << "frame " << t;
+    EXPECT_LT((w[2 * t + 1] + (2 * angle[t] + 2 * M_PI) * Eigen::Vector3d::UnitY()).norm(), 1e-9);
+  }
+}
+
+TEST(Transforms, UnwrapRotationsTakesTheShorterOfTwoStepsOverHalfATurn) {
+  // Steps of 200 degrees read as steps of -160 degrees: documented, not decidable.
+  const Eigen::Vector3d z(0, 0, 1);
+  Matrix3Array frames;
+  for (int t = 0; t < 4; ++t) {
+    frames.push_back(Eigen::AngleAxisd(t * 200.0 * M_PI / 180.0, z).toRotationMatrix());
+  }
+  const std::vector<Eigen::Vector3d> v = unwrap_rotations(frames, 1, {});
+  for (int t = 0; t < 4; ++t) {
+    EXPECT_LT((v[static_cast<size_t>(t)] - t * (-160.0 * M_PI / 180.0) * z).norm(), 1e-9);
+  }
+}
+
+TEST(Transforms, UnwrapRotationsRejectsBadInput) {
+  const Matrix3Array two(2, Eigen::Matrix3d::Identity());
+  EXPECT_THROW(unwrap_rotations(two, 0, {}), std::invalid_argument);
+  EXPECT_THROW(unwrap_rotations(two, 3, {}), std::invalid_argument);
+  EXPECT_THROW(unwrap_rotations(two, 1, {Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero()}),
+               std::invalid_argument);
+  EXPECT_THROW(unwrap_rotations(two, 1, {Eigen::Vector3d(std::nan(""), 0, 0)}),
+               std::invalid_argument);
+  Matrix3Array bad = two;
+  bad[1](2, 2) = -1;
+  EXPECT_THROW(unwrap_rotations(bad, 1, {}), std::invalid_argument);
+  bad[1](2, 2) = std::numeric_limits<double>::infinity();
+  EXPECT_THROW(unwrap_rotations(bad, 1, {}), std::invalid_argument);
+  EXPECT_TRUE(unwrap_rotations(Matrix3Array(), 2, {}).empty());
 }

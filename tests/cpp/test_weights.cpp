@@ -1,7 +1,10 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <numeric>
 #include <queue>
 #include <random>
+#include <vector>
 
 #include "matdeform/mesh.hpp"
 #include "matdeform/weights.hpp"
@@ -141,4 +144,52 @@ TEST(Mesh, DualEdgesOfTwoTrianglesAndNonManifoldFan) {
     EXPECT_EQ(d.shared(e, 0), 1);
     EXPECT_EQ(d.shared(e, 1), 2);
   }
+}
+
+// largest_harmonic_weights keeps, per row, the largest entries of the dense row: checked against
+// harmonic_weights on a grid large enough that the columns are solved in several blocks, with
+// anchor rows and a component no anchor reaches (empty rows). The two use different orderings,
+// so values agree to round-off, and which of two tied entries is kept may differ.
+TEST(Weights, LargestHarmonicWeightsAreTheDenseRowsLargest) {
+  Vertices V;
+  Faces F1;
+  meshes::make_grid(100, 100, &V, &F1);  // 20k faces
+  Faces F(F1.rows() + 2, 3);
+  const int nv = static_cast<int>(V.rows());
+  F << F1, nv, nv + 1, nv + 2, nv + 1, nv + 3, nv + 2;  // an island of two faces
+  const DualEdges dual = dual_edges(F);
+  const int m = static_cast<int>(F.rows());
+  std::mt19937 rng(7);
+  std::uniform_real_distribution<double> u(0.5, 2.0);
+  Eigen::VectorXd phi(dual.pairs.rows());
+  for (Eigen::Index e = 0; e < phi.size(); ++e) phi(e) = u(rng);
+  AnchorList anchors;
+  for (int j = 5; j < 100; j += 6)
+    for (int i = 5; i < 100; i += 6) anchors.push_back({2 * (j * 100 + i)});  // 16 x 16 faces
+  const int k = static_cast<int>(anchors.size());
+  ASSERT_GT(k, (1 << 22) / (m - k));  // more columns than one block
+  const RowMatrix W = harmonic_weights(m, dual.pairs, phi, anchors);
+  for (const int keep : {1, 8, 300}) {
+    const SparseWeights S = largest_harmonic_weights(m, dual.pairs, phi, anchors, keep);
+    ASSERT_EQ(S.ptr.size(), static_cast<size_t>(m) + 1);
+    int bad = 0;
+    for (int f = 0; f < m - 2; ++f) {
+      const int b = S.ptr[f], e = S.ptr[f + 1];
+      bad += e - b != std::min(keep, static_cast<int>((W.row(f).array() > 0.0).count()));
+      std::vector<char> kept(k, 0);
+      for (int i = b; i < e; ++i) {
+        kept[S.idx[i]] = 1;
+        bad += std::abs(S.w[i] - W(f, S.idx[i])) > 1e-12;  // the dense value
+        bad += i > b && S.w[i] > S.w[i - 1] + 1e-12;       // largest first (ties by anchor)
+      }
+      for (int a = 0; a < k; ++a) bad += !kept[a] && W(f, a) > S.w[e - 1] + 1e-12;
+    }
+    EXPECT_EQ(bad, 0) << "keep " << keep;
+    const int anchor_face = anchors[3][0];
+    ASSERT_EQ(S.ptr[anchor_face + 1] - S.ptr[anchor_face], 1);
+    EXPECT_EQ(S.idx[S.ptr[anchor_face]], 3);
+    EXPECT_EQ(S.w[S.ptr[anchor_face]], 1.0);
+    EXPECT_EQ(S.ptr[m] - S.ptr[m - 2], 0);  // the island
+  }
+  EXPECT_THROW(largest_harmonic_weights(m, dual.pairs, phi, anchors, 0), std::invalid_argument);
 }

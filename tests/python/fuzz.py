@@ -4,15 +4,18 @@ Case i of seed s is a function of (s, i) alone: a random mesh (soup, partial gri
 randomly scaled, moved and relabelled), random arguments (anchors, stiffness, pinned vertices,
 regions, transforms, poses, ...) and, for about a quarter of the cases, one hostile mutation
 (NaN, negative or out-of-range index, wrong shape or dtype, extreme scale, overlapping anchors,
-det <= 0, ...). A case passes when the call either returns finite numbers or raises ValueError,
-and, for meshes that are not soups, when a random relabelling of vertices, faces and corners
-gives the same result, permuted back (positions to 1e-9 of the bounding-box diagonal).
+det <= 0, ...). A case passes when the call either returns finite numbers or raises ValueError
+(or a RuntimeError that says to rescale the mesh: a solve refused after the fact), and, for
+meshes that are not soups, when a random relabelling of vertices, faces and corners gives the
+same result, permuted back (positions to 1e-9 of the bounding-box diagonal; EdgeDeformer to
+EDGE_RELABEL_TOL of the larger of the rest and result diagonals).
 
 Worker protocol (tests/python/test_fuzz.py drives it in subprocesses, so a crash is counted):
     python tests/python/fuzz.py SEED START COUNT
 prints "start i function" before case i and one JSON line {"i", "function", "status", "detail"}
 after it.
-Statuses: ok, rejected (ValueError), and the failures error, nan, permutation.
+Statuses: ok, rejected (ValueError, or RuntimeError saying to rescale), and the failures error,
+nan, permutation.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from matdeform import shapes
 
 FUNCTIONS = [
     "MaterialDeformer",
+    "EdgeDeformer",
     "harmonic_weights",
     "dual_edges",
     "face_components",
@@ -51,12 +55,22 @@ FUNCTIONS = [
     "blend_transforms",
     "obj_round_trip",
     "set_num_threads",
+    "unwrap_rotations",
+    "PoseSpaceDeformer",
     "PyramidDeformer",
 ]
 # Checked for relabelling on soups too: they only count and sort.
 TOPOLOGY = {"dual_edges", "face_components", "faces_inside", "boundary_and_nonmanifold_edges"}
 # Solvers get more cases: they have the most arguments.
-WEIGHTS = np.array([6, 2] + [1] * (len(FUNCTIONS) - 2), dtype=float)
+WEIGHTS = np.array([6, 6, 2] + [1] * (len(FUNCTIONS) - 3), dtype=float)
+# EdgeDeformer under relabelling, x the larger of the rest and result bounding-box diagonals:
+# another numbering orders the factor differently, and stretch down to 1e-6 of bend leaves
+# in-plane motions weakly determined (condition numbers ~1e7), so round-off differs by ~1e-9
+# of the result; up to 30 iterations, some not settled (a result many rest diagonals away),
+# carry it on. Measured: at most 2.3e-9 (median 5e-16) over 1,290 relabelled cases of seeds
+# 0-5; an edge turned by one end's rotation instead of both (a real slip) differs by 1e-4 to 1.
+EDGE_RELABEL_TOL = 1e-8
+WEIGHTS[FUNCTIONS.index("PoseSpaceDeformer")] = 6
 WEIGHTS[FUNCTIONS.index("PyramidDeformer")] = 4
 
 
@@ -232,6 +246,10 @@ def run_case(seed: int, i: int) -> dict:
         CASES[fn](rng, v, f, mutation == "argument", perm if fn not in TOPOLOGY else topology, kind)
     except ValueError as e:
         return {"function": fn, "status": "rejected", "detail": str(e)[:200]}
+    except RuntimeError as e:  # a solve refused after the fact: only with a clear remedy
+        if "rescale the mesh" not in str(e):
+            return {"function": fn, "status": "error", "detail": f"RuntimeError: {e}"[:300]}
+        return {"function": fn, "status": "rejected", "detail": str(e)[:200]}
     except Failure as e:
         return {"function": fn, "status": e.status, "detail": e.detail}
     except Exception as e:  # noqa: BLE001 - any other exception is a finding
@@ -317,6 +335,78 @@ def case_deformer(rng, v, f, hostile, perm, kind):
     d2 = md.MaterialDeformer(r.vertices, r.faces, r.anchors(anchors), **kw2)
     close("deform", r.to_original(d2.deform(T, pp)), X, 1e-9 * max(diag, 1e-300))
     close("weights", r.faces_to_original(d2.weights), d.weights, 1e-9)
+
+
+def case_edge(rng, v, f, hostile, perm, kind):
+    """EdgeDeformer: anchors (vertex sets of random faces, each moved by its own random motion,
+    so the carried first step runs) and loose constrained vertices; every option at random."""
+    n, m = len(v), len(f)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if n else 1.0
+    groups = [np.unique(f[a]) for a in disjoint_face_sets(rng, max(m, 1), int(rng.integers(1, 4)))]
+    groups.append(rng.permutation(n)[: int(rng.integers(0, 3))])
+    c, owner = np.unique(np.concatenate(groups), return_index=True)
+    owner = np.searchsorted(np.cumsum([len(g) for g in groups]), owner, side="right")
+    motions = random_transforms(rng, len(groups), diag)
+    rest = v[np.clip(c.astype(np.int64), 0, n - 1)]  # mutated faces may index outside v
+    pos = np.einsum("kij,kj->ki", motions[owner, :3, :3], rest) + motions[owner, :3, 3]
+    pos += rng.normal(scale=0.01 * diag, size=pos.shape)
+    kw = dict(stretch=0.0 if rng.random() < 0.2 else 10.0 ** rng.uniform(-6, 0))
+    kw["bend"] = 10.0 ** rng.uniform(-2, 1)
+    e = len(md.mesh_edges(f)) if f.ndim == 2 and f.shape[-1] == 3 and f.dtype.kind == "i" else 0
+    if rng.random() < 0.3:
+        kw["edge_weight"] = random_stiffness(rng, e)
+    if rng.random() < 0.3:
+        kw["direction"] = rng.normal(size=(n, 3))
+    opts = dict(iterations=int(rng.integers(1, 30)), tol=float(rng.choice([0.0, 1e-6, 1e-3])))
+    opts.update(p_stretch=float(rng.uniform(0, 1)), p_bend=float(rng.uniform(0.2, 1)))
+    opts["gravity"] = rng.normal(scale=1e-3 * diag, size=3) if rng.random() < 0.3 else np.zeros(3)
+    opts["relaxation"] = float(rng.choice([1.0, rng.uniform(0.3, 1.0)]))
+    if rng.random() < 0.3:
+        opts["initial"] = v + rng.normal(scale=0.1 * diag, size=v.shape)
+    if hostile:
+        what = str(
+            rng.choice(["count", "real", "far", "far_start", "gravity", "product", "nan", "repeat"])
+        )
+        if what == "count":
+            opts["iterations"] = rng.choice([0, -1, 2**31, 2**63, 2.0, None, "5"])
+        elif what == "real":
+            name = str(rng.choice(["tol", "p_stretch", "p_bend", "relaxation", "stretch", "bend"]))
+            bad = rng.choice([None, "0.5", np.nan, np.inf, -1.0, 2.0, True])
+            (kw if name in ("stretch", "bend") else opts)[name] = bad
+        elif what == "far":  # extreme scales: "rescale the mesh", never NaN
+            pos = pos * 1e155 if rng.random() < 0.5 else pos + 1e200
+        elif what == "far_start":
+            opts["initial"] = v * 1e200
+        elif what == "gravity":
+            opts["gravity"] = np.array([0.0, 0.0, -1e300])
+        elif what == "product":
+            kw.update(stretch=1e300, edge_weight=np.full(e, 10.0))
+        elif what == "nan":
+            pos[0, 1] = np.nan
+        elif what == "repeat":
+            c = np.append(c, c[0])
+    d = md.EdgeDeformer(v, f, c, **kw)
+    X = d.solve(pos, **opts)
+    finite("EdgeDeformer.solve", X, d.last_move, d.bend_coefficients[d.opposite[:, 0] >= 0])
+    if X.shape != (n, 3):
+        raise Failure("error", f"EdgeDeformer.solve: shape {X.shape}")
+    if not perm:
+        return
+    r = relabel_for(rng, v, f)
+    kw2 = dict(kw)
+    if "edge_weight" in kw:
+        new = {tuple(x): k for k, x in enumerate(md.mesh_edges(r.faces).tolist())}
+        old = np.sort(r.vertex[md.mesh_edges(f)], axis=1).tolist()
+        kw2["edge_weight"] = np.empty(e)
+        kw2["edge_weight"][[new[tuple(x)] for x in old]] = kw["edge_weight"]
+    if "direction" in kw:
+        kw2["direction"] = r.per_vertex(kw["direction"])
+    opts2 = dict(opts)
+    if "initial" in opts:
+        opts2["initial"] = r.per_vertex(opts["initial"])
+    X2 = md.EdgeDeformer(r.vertices, r.faces, r.vertex_ids(c), **kw2).solve(pos, **opts2)
+    size = max(diag, float(np.linalg.norm(np.ptp(X, axis=0))), 1e-300)
+    close("EdgeDeformer.solve", r.to_original(X2), X, EDGE_RELABEL_TOL * size)
 
 
 def case_harmonic_weights(rng, v, f, hostile, perm, kind):
@@ -640,8 +730,188 @@ def case_pyramid(rng, v, f, hostile, perm, kind):
         close("PyramidDeformer.deform", r.to_original(X2), X, tol)
 
 
+def case_unwrap(rng, v, f, hostile, perm, kind):
+    """An animation of k anchors (turns of up to ~115 degrees per frame about wobbling axes,
+    scaled, sometimes float32) unwrapped, then its last frame deformed with those vectors on a
+    small tube; hostile: NaN or det <= 0 frames, bad or huge starts, a vector off its rotation."""
+    count, k = int(rng.integers(0, 30)), int(rng.integers(1, 4))
+    axes, speed = rng.normal(size=(k, 3)), rng.uniform(-2, 2, k)
+    frames = np.empty((count, k, 3, 3))
+    for t in range(count):
+        for a in range(k):
+            turn = rotation(axes[a] + 0.2 * rng.normal(size=3), speed[a] * t)
+            frames[t, a] = turn @ np.diag(10.0 ** rng.uniform(-0.5, 0.5, 3))
+    if rng.random() < 0.3:
+        frames = frames.astype(np.float32)
+    start = (
+        rng.normal(scale=10.0 ** rng.uniform(-1, 3), size=(k, 3)) if rng.random() < 0.3 else None
+    )
+    what = rng.choice(["nan", "det", "start_shape", "start_inf", "start_huge", "vector"])
+    if hostile and count and what == "nan":
+        frames[rng.integers(0, count), rng.integers(0, k), 1, 1] = np.nan
+    elif hostile and count and what == "det":
+        frames[rng.integers(0, count), rng.integers(0, k)] *= -1
+    elif hostile and what == "start_shape":
+        start = np.zeros((k + 1, 3))
+    elif hostile and what == "start_inf":
+        start = np.full((k, 3), np.inf)
+    elif hostile and what == "start_huge":
+        start = np.full((k, 3), 10.0 ** rng.uniform(15, 300))
+    vectors = md.unwrap_rotations(frames, start=start)
+    finite("unwrap_rotations", vectors)
+    if vectors.shape != (count, k, 3):
+        raise Failure("error", f"unwrap_rotations: shape {vectors.shape}")
+    if not count:
+        return
+    tv, tf = shapes.tube(length=4.0, radius=0.5, n_around=5, n_along=3 * k)
+    ring = 2 * 5  # faces per segment
+    anchors = [np.arange(3 * a * ring, (3 * a + 1) * ring) for a in range(k)]
+    T = np.tile(np.eye(4), (k, 1, 1))
+    T[:, :3, :3] = frames[-1]
+    rv = vectors[-1].copy()
+    if hostile and what == "vector":
+        rv[0] += 0.5
+    X = md.MaterialDeformer(tv, tf, anchors).deform(T, rotation_vectors=rv)
+    finite("deform(rotation_vectors)", X)
+
+
+def smooth_field(rng, v, diag, amount):
+    """(n,3) smooth displacement: a few random sine waves over the mesh, amplitude ~amount*diag."""
+    W = rng.normal(size=(3, 3)) * (np.pi / max(diag, 1e-300))
+    phase = rng.uniform(0, 2 * np.pi, 3)
+    return np.sin(v @ W + phase) @ rng.normal(scale=amount * diag, size=(3, 3))
+
+
+POSE_SPACE_BAD = {
+    "rotation_iterations": [2**31, 0, 2.0, "3", True],
+    "gauge_steps": [2**31, -1, None],
+    "transfer_neighbors": [2**40, 0, np.float64(8)],
+    "position_weight": ["1", None, 0.0, -1.0, np.inf, np.nan, [1.0]],
+    "rotation_weight": [None, 0.0, np.nan],
+    "joint_weight": [None, -2.0],
+    "rotation_tolerance": [None, 0.0, 1.0, np.nan],
+    "reliability_angle": [None, 0.0, -np.inf, np.nan],
+    "orientation_weight": [None, -1.0, np.inf],
+    "weight_regularization": ["x", -0.5],
+    "handle_rotations": ["no", None, 1],
+    "convex_weights": [None, 0],
+    "area_weights": [2],
+    "rotation_energy": [None, "exact"],
+}
+
+
+def case_pose_space(rng, v, f, hostile, perm, kind):
+    """PoseSpaceDeformer on the random mesh, its unused vertices dropped (a partial grid falls
+    into parts, which are solved or, without a handle, kept at rest): random examples (smooth
+    non-rigid fields), handles, frame, rotational pairs, frozen faces, coarse level and options;
+    hostile: a bad option, bad handles or positions far beyond double range."""
+    valid = f.ndim == 2 and f.shape[1] == 3 and f.dtype.kind == "i" and f.size > 0
+    valid = valid and 0 <= f.min() and f.max() < len(v)
+    if valid and rng.random() < 0.9:  # mostly compact, sometimes with unused vertices
+        used = np.unique(f)
+        remap = np.full(len(v), -1)
+        remap[used] = np.arange(len(used))
+        v, f = v[used], remap[f]
+    n, m = len(v), len(f)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if n else 1.0
+    p = int(rng.integers(0, 4))
+    with np.errstate(all="ignore"):  # mutated meshes: NaN or 1e60 vertices
+        fields = [smooth_field(rng, v, diag, rng.uniform(0.02, 0.15)) for _ in range(p - 1)]
+    examples = [v] + [v + x for x in fields]
+    examples = np.stack(examples)[:p] if p else np.zeros((0, n, 3))
+    sizes = rng.integers(1, 7, int(rng.integers(1, 4)))
+    order = rng.permutation(n)
+    handles, at = [], 0
+    for s in sizes:
+        if at + s <= n:
+            handles.append(order[at : at + s])
+            at += s
+    kw = {}
+    if rng.random() < 0.3 and m:
+        kw["frame"] = int(rng.integers(0, m))
+    if rng.random() < 0.25 and m >= 2:
+        kw["rotational"] = [tuple(int(x) for x in rng.choice(m, 2, replace=False))]
+    if rng.random() < 0.2 and valid:
+        hv = np.zeros(n, bool)
+        for h in handles:
+            hv[h] = True
+        free = np.flatnonzero(~hv[f].any(axis=1))
+        if len(free):
+            kw["frozen"] = rng.choice(free, min(len(free), int(rng.integers(1, 4))), replace=False)
+    if rng.random() < 0.25 and m >= 24:
+        kw["coarse"] = int(rng.integers(max(4, m // 4), m))
+    if rng.random() < 0.5:
+        kw["position_weight"] = 10.0 ** rng.uniform(-2, 4)
+        kw["rotation_weight"] = 10.0 ** rng.uniform(-2, 2)
+        kw["orientation_weight"] = rng.choice([0.0, 0.5, 1.0, 3.0])
+        kw["weight_regularization"] = rng.choice([0.0, 0.0, 0.01])
+        kw["convex_weights"] = bool(rng.random() < 0.3)
+        kw["rotation_energy"] = str(rng.choice(["chordal", "geodesic"]))
+        kw["reliability_angle"] = rng.choice([0.2, 0.5, np.inf])
+        kw["area_weights"] = bool(rng.random() < 0.2)
+        kw["transfer_neighbors"] = int(rng.integers(1, 12))
+    if perm:  # converged rotations (the default cap leaves a numbering-dependent residual)
+        kw.update(rotation_iterations=500, gauge_steps=50, rotation_tolerance=1e-12)
+    # An edit: a blend of the examples (a little beyond), rigidly moved, with noise.
+    w = rng.dirichlet(np.ones(p)) * 1.4 - 0.4 / p if p else None
+    shape = np.einsum("k,kvc->vc", w, examples) if p else v.copy()
+    R, t = random_rotation(rng), rng.normal(scale=diag, size=3)
+    with np.errstate(all="ignore"):
+        shape = shape @ R.T + t + rng.normal(scale=0.01 * diag, size=shape.shape)
+    hp = [shape[h] for h in handles]
+    rot = None
+    if "rotational" in kw and rng.random() < 0.6:
+        rot = random_rotation(rng, 1.0)[None]
+    ft = None
+    if "frame" in kw and rng.random() < 0.5:
+        ft = np.eye(4)
+        ft[:3, :3], ft[:3, 3] = R, t
+    if hostile or rng.random() < 0.15:  # its own hostile arguments, more often than the rest
+        what = str(rng.choice(["option", "handles", "positions", "examples", "far", "count"]))
+        if what == "option":
+            name = str(rng.choice(list(POSE_SPACE_BAD)))
+            bad = POSE_SPACE_BAD[name]
+            kw[name] = bad[int(rng.integers(0, len(bad)))]
+        elif what == "handles" and handles:
+            handles = handles + [handles[0][:1]] if rng.random() < 0.5 else [np.array([n + 3])]
+            hp = [shape[np.clip(h, 0, n - 1)] for h in handles]
+        elif what == "positions" and hp:
+            hp[0] = hp[0].copy()
+            hp[0][0, 0] = rng.choice([np.nan, np.inf])
+        elif what == "examples" and p:
+            examples = examples.copy()
+            with np.errstate(over="ignore"):  # 1e300: infinite, refused as such
+                examples[-1] = examples[-1] * rng.choice([1e155, 1e300])
+        elif what == "far" and hp:
+            hp = [h * 1e155 if rng.random() < 0.5 else h + 1e200 for h in hp]
+        elif hp:
+            hp = hp[:-1]
+    d = md.PoseSpaceDeformer(v, f, examples, handles, **kw)
+    X = d.deform(hp, rot, ft)
+    finite("PoseSpaceDeformer.deform", X, d.example_weights, d.pose_weights(hp, rot, ft))
+    if X.shape != (n, 3):
+        raise Failure("error", f"deform: shape {X.shape}")
+    if not perm:
+        return
+    r = relabel_for(rng, v, f)
+    kw2 = dict(kw)
+    if "frame" in kw:
+        kw2["frame"] = int(r.face_ids([kw["frame"]])[0])
+    if "rotational" in kw:
+        kw2["rotational"] = [tuple(int(x) for x in r.face_ids(list(q))) for q in kw["rotational"]]
+    if "frozen" in kw:
+        kw2["frozen"] = r.face_ids(kw["frozen"])
+    ex2 = np.stack([r.per_vertex(x) for x in examples]) if p else examples
+    d2 = md.PoseSpaceDeformer(r.vertices, r.faces, ex2, [r.vertex_ids(h) for h in handles], **kw2)
+    # The result's own scale: handles far from the rest mesh stretch it.
+    scale = max(diag, float(np.linalg.norm(np.ptp(X, axis=0))))
+    close("PoseSpaceDeformer.deform", r.to_original(d2.deform(hp, rot, ft)), X, 1e-9 * scale)
+    close("example_weights", d2.example_weights, d.example_weights, 1e-9)
+
+
 CASES = {
     "MaterialDeformer": case_deformer,
+    "EdgeDeformer": case_edge,
     "harmonic_weights": case_harmonic_weights,
     "dual_edges": case_dual_edges,
     "face_components": case_face_components,
@@ -662,6 +932,8 @@ CASES = {
     "blend_transforms": case_blend,
     "obj_round_trip": case_obj,
     "set_num_threads": case_threads,
+    "unwrap_rotations": case_unwrap,
+    "PoseSpaceDeformer": case_pose_space,
     "PyramidDeformer": case_pyramid,
 }
 assert set(CASES) == set(FUNCTIONS)

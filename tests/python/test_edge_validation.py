@@ -47,9 +47,22 @@ def test_constructor_arguments(sheet):
         md.EdgeDeformer(v, f, c, stretch=np.nan)
     with pytest.raises(ValueError, match=r"bend: expected a finite value in \(0, inf\)"):
         md.EdgeDeformer(v, f, c, bend=0.0)
-    with pytest.raises(ValueError, match="bend: expected a real number"):
-        md.EdgeDeformer(v, f, c, bend="stiff")
+    for name, lo in (("stretch", r"\[0"), ("bend", r"\(0")):
+        msg = rf"{name}: expected a finite value in {lo}, inf\)"
+        for bad in (None, "stiff", "1", [1.0], True, np.nan, -np.inf, np.inf, -1.0):
+            with pytest.raises(ValueError, match=msg):
+                md.EdgeDeformer(v, f, c, **{name: bad})
+    # only the products reach the matrix: each alone may be huge, not stiffness x weight
     e = len(md.mesh_edges(f))
+    md.EdgeDeformer(v, f, c, stretch=1e300, bend=1e300)
+    with pytest.raises(ValueError, match="stretch, bend, edge_weight: their products exceed 1e300"):
+        md.EdgeDeformer(v, f, c, stretch=1e300, edge_weight=np.full(e, 10.0))
+    with pytest.raises(ValueError, match="their products exceed 1e300"):
+        md.EdgeDeformer(v, f, c, bend=1e200, edge_weight=np.full(e, 1e101))
+    with pytest.raises(ValueError, match="vertices: the mesh is 5e.155 across.*rescale the mesh"):
+        md.EdgeDeformer(v * 1e155, f, c)
+    with pytest.raises(ValueError, match="vertices: the mesh is 5e-200 across.*rescale the mesh"):
+        md.EdgeDeformer(v * 1e-200, f, c)
     with pytest.raises(ValueError, match=rf"edge_weight: expected shape \({e},\)"):
         md.EdgeDeformer(v, f, c, edge_weight=np.ones(e + 1))
     with pytest.raises(ValueError, match="edge_weight: stiffness must be > 0"):
@@ -81,28 +94,43 @@ def test_solve_arguments_and_failed_calls_change_nothing(sheet):
     bad_calls = [
         (dict(constrained_positions=np.zeros((3, 3))), r"constrained_positions: expected shape"),
         (dict(constrained_positions=np.full((4, 3), np.nan)), "constrained_positions: contains"),
-        (dict(iterations=0), r"iterations: expected an integer >= 1"),
-        (dict(iterations=2.5), r"iterations: expected an integer >= 1"),
-        (dict(iterations=True), r"iterations: expected an integer >= 1"),
-        (dict(tol=-1.0), r"tol: expected a finite value in \[0, inf\)"),
         (dict(tol=np.inf), "tol: expected a finite value"),
-        (dict(p_stretch=1.2), r"p_stretch: expected a finite value in \[0, 1\]"),
-        (dict(p_bend=-0.1), r"p_bend: expected a finite value in \[0, 1\]"),
-        (dict(p_bend=np.nan), r"p_bend: expected a finite value in \[0, 1\]"),
         (dict(gravity=(0.0, np.nan, 0.0)), "gravity: contains NaN"),
         (dict(gravity=(0.0, -9.8)), r"gravity: expected shape \(3,\)"),
-        (dict(gravity="down"), r"gravity: expected a float array of shape \(3,\)"),
+        (dict(gravity=None), r"gravity: expected shape \(3,\)"),
+        (dict(gravity="down"), "gravity: expected a float array"),
         (dict(initial=np.zeros((35, 3))), r"initial: expected shape \(36,3\)"),
         (dict(initial=np.full((36, 3), np.inf)), "initial: contains NaN"),
-        (dict(relaxation=0.0), r"relaxation: expected a finite value in \(0, 1\]"),
-        (dict(relaxation=1.5), r"relaxation: expected a finite value in \(0, 1\]"),
+        (dict(constrained_positions=pos * 1e155), "constrained_positions: lies beyond 1e50 mesh"),
+        (dict(constrained_positions=pos + 1e200), "constrained_positions: lies beyond"),
+        (dict(initial=v * 1e200), "initial: lies beyond 1e50 mesh sizes.*rescale the mesh"),
     ]
+    # counts: a C int, so at most 2**31 - 1 (not pybind's TypeError beyond)
+    its = r"iterations: expected an integer in \[1, 2147483647\]"
+    for bad in (0, -3, 2**31, 2**63, np.int64(2**40), 2.5, 5.0, True, None, "5", np.nan):
+        bad_calls.append((dict(iterations=bad), its))
+    # reals: a finite number in range, not None, a string, NaN or out of range
+    for name, hi in (("tol", None), ("p_stretch", 1.0), ("p_bend", 1.0)):
+        rng = r"\[0, " + (r"inf\)" if hi is None else r"1\]")
+        for bad in (None, "0.5", [0.5], False, np.nan, -1.0, 1.5 if hi else -np.inf):
+            bad_calls.append((dict({name: bad}), rf"{name}: expected a finite value in {rng}"))
+    for bad in (None, "1", 0.0, -0.5, 1.5, np.nan, np.inf):
+        bad_calls.append((dict(relaxation=bad), r"relaxation: expected a finite value in \(0, 1\]"))
     for kw, msg in bad_calls:
         args = dict(constrained_positions=pos, iterations=5, tol=0)
         args.update(kw)
         with pytest.raises(ValueError, match=msg):
             d.solve(**args)
         assert d.last_iterations == 3
+    move = d.last_move
+    # the largest count passes validation (and tol stops it at once)
+    d.solve(pos, iterations=2**31 - 1, tol=1e300)
+    assert d.last_iterations == 1
+    d.solve(pos, iterations=3, tol=0)
+    # gravity far too strong for the stiffness: the iterate leaves the representable range
+    with pytest.raises(RuntimeError, match="left the range the solver represents.*weaken gravity"):
+        d.solve(pos, iterations=5, tol=0, gravity=(0.0, 0.0, -1e300))
+    assert d.last_iterations == 3 and d.last_move == move
     np.testing.assert_array_equal(d.solve(pos, iterations=3, tol=0), x)
 
 

@@ -53,3 +53,10 @@ def test_faces_inside_a_vertex_selection():
     assert md.faces_inside(f, []).dtype == np.int64 and len(md.faces_inside(f, [])) == 0
     with pytest.raises(ValueError, match="vertex_ids"):
         md.faces_inside(f, [-1])
+
+
+def test_mesh_edges_refuses_negative_indices():
+    """A negative id is no vertex: it used to come back as an edge (-5, 0)."""
+    with pytest.raises(ValueError, match="faces: indices must be >= 0, got -5"):
+        md.mesh_edges([[0, 1, -5]])
+    assert md.mesh_edges([[0, 1, 5]]).tolist() == [[0, 1], [0, 5], [1, 5]]

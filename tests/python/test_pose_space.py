@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 from conftest import rotation
+from permutation import Relabelling
 from reference_pose_space import Reference
 
 import matdeform as md
@@ -283,6 +284,136 @@ def test_relabelling_permutes_the_result(scene):
     np.testing.assert_allclose(d.example_weights, d2.example_weights, atol=1e-12)
 
 
+def three_bars(v, f, ex):
+    """The scene's bar three times, side by side (parts 0, 1, 2), with every example applied to
+    every bar (so a free bar would visibly follow)."""
+    n = len(v)
+    shift = np.array([0.0, 3.0, 0.0])
+    V = np.vstack([v, v + shift, v + 2 * shift])
+    F = np.vstack([f, f + n, f + 2 * n])
+    EX = np.stack([np.vstack([x, x + shift, x + 2 * shift]) for x in ex])
+    return V, F, EX
+
+
+@pytest.mark.parametrize("coarse", [None, 60])
+def test_a_part_without_control_stays_exactly_at_rest(scene, coarse):
+    """Three bars: handles on bar 0, a rotational pair alone on bar 2, nothing on bar 1. Bar 1
+    is the rest bit for bit; bar 0 is what the bar alone gives (same weights: without the
+    handles' orientations the pose vector only scales with the diagonal, and the weights do not
+    depend on that scale); bar 2 follows the blend and bends by its joint, about its rest
+    centroid (nothing holds its place)."""
+    v, f, ex, handles = scene
+    n, m = len(v), len(f)
+    V, F, EX = three_bars(v, f, ex)
+    kw = dict(orientation_weight=0.0, rotation_iterations=200, rotation_tolerance=1e-12)
+    pair = [(2 * m + 5, 2 * m + m - 20)]
+    d = md.PoseSpaceDeformer(V, F, EX, handles, rotational=pair, coarse=coarse, **kw)
+    alone = md.PoseSpaceDeformer(v, f, ex, handles, coarse=coarse, **kw)
+    hp = in_between(ex, handles)
+    X = d.deform(hp)  # joint free: the pose from the handles alone
+    np.testing.assert_array_equal(X[n : 2 * n], V[n : 2 * n])
+    Xa = alone.deform(hp)
+    np.testing.assert_allclose(d.example_weights, alone.example_weights, atol=1e-12)
+    if coarse is None:
+        assert np.abs(X[:n] - Xa).max() < 1e-9 * diag(v)
+    else:  # 60 coarse faces shared by two solved bars, against 60 for the bar alone
+        assert np.abs(X[:n] - Xa).max() < 0.1 * diag(v)
+    Xj = d.deform(hp, rotation([0, 1, 1], 0.6)[None])  # joint bent
+    np.testing.assert_array_equal(Xj[n : 2 * n], V[n : 2 * n])
+    # the mean kept is that of the vertices solved for: bar 2's coarse ones with `coarse`
+    cv = d.coarse_vertices
+    kept = cv[cv >= 2 * n]
+    for Y in (X, Xj):
+        assert np.abs(Y[2 * n :] - V[2 * n :]).max() > 0.03 * diag(v)
+        assert np.abs(Y[kept].mean(0) - V[kept].mean(0)).max() < 1e-9 * diag(v)
+    assert np.abs(Xj[2 * n :] - X[2 * n :]).max() > 0.03 * diag(v)
+
+
+def test_parts_at_an_example_are_that_example_and_relabelling_permutes(scene):
+    """Handles on two of three bars moved by one rigid motion from an example: both bars are
+    that example, rigidly moved (each solved in its own rotation and translation gauge); the
+    third bar stays at rest. A random relabelling of the three-part mesh permutes the result."""
+    v, f, ex, handles = scene
+    n = len(v)
+    V, F, EX = three_bars(v, f, ex)
+    H = handles + [h + n for h in handles]
+    d = md.PoseSpaceDeformer(V, F, EX, H)
+    R, t = rotation([1, 2, 3], 0.7), np.array([1.0, -2.0, 0.5])
+    for k in range(len(EX)):
+        target = EX[k] @ R.T + t
+        X = d.deform(handle_positions(target, H))
+        np.testing.assert_allclose(d.example_weights, np.eye(len(EX))[k], atol=1e-9)
+        assert np.abs(X[: 2 * n] - target[: 2 * n]).max() < 1e-9 * diag(V)
+        np.testing.assert_array_equal(X[2 * n :], V[2 * n :])
+    kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
+    d = md.PoseSpaceDeformer(V, F, EX, H, **kw)
+    rng = np.random.default_rng(5)
+    vp, fp = rng.permutation(len(V)), rng.permutation(len(F))  # new -> old
+    vinv = np.argsort(vp)
+    d2 = md.PoseSpaceDeformer(V[vp], vinv[F[fp]], EX[:, vp], [vinv[h] for h in H], **kw)
+    hp = in_between(EX, H)
+    X, X2 = d.deform(hp), d2.deform(hp)
+    assert np.abs(X[vp] - X2).max() < 1e-9 * diag(V)
+    np.testing.assert_array_equal(X2[vinv[2 * n :]], V[2 * n :])
+
+
+def test_relabelling_a_symmetric_tube_keeps_the_root_face():
+    """A round tube's centre is equally far from a whole ring of faces, so the natural shape's
+    root face is decided by the tie-break; with inconsistent examples (smooth random fields)
+    another root gives another chordal solution. Handles of two vertices make no handle faces,
+    so the result is that natural shape turned: it must survive relabelling to 1e-9."""
+    v, f = shapes.tube(length=2.0, radius=0.5, n_around=8, n_along=3)
+    rng = np.random.default_rng(3)
+    d0 = diag(v)
+    fields = []
+    for _ in range(2):
+        W = rng.normal(size=(3, 3)) * np.pi / d0
+        fields.append(
+            np.sin(v @ W + rng.uniform(0, 6, 3)) @ rng.normal(scale=0.1 * d0, size=(3, 3))
+        )
+    ex = np.stack([v, v + fields[0], v + fields[1]])
+    handles = [np.array([0, 1]), np.array([len(v) - 2, len(v) - 3])]
+    kw = dict(
+        rotation_iterations=500,
+        gauge_steps=50,
+        rotation_tolerance=1e-12,
+        rotational=[(3, len(f) - 5)],
+    )
+    hp = [0.5 * (ex[1][h] + ex[2][h]) for h in handles]
+    X = md.PoseSpaceDeformer(v, f, ex, handles, **kw).deform(hp)
+    for seed in range(6):
+        r = Relabelling(v, f, np.random.default_rng(seed))
+        kw2 = dict(kw, rotational=[tuple(int(x) for x in r.face_ids([3, len(f) - 5]))])
+        ex2 = np.stack([r.per_vertex(x) for x in ex])
+        d2 = md.PoseSpaceDeformer(
+            r.vertices, r.faces, ex2, [r.vertex_ids(h) for h in handles], **kw2
+        )
+        assert np.abs(r.to_original(d2.deform(hp)) - X).max() < 1e-9 * d0, seed
+
+
+def test_relabelling_a_symmetric_tube_keeps_the_transfer_neighbours():
+    """On a round tube a dense vertex is often equally far (harmonically) from several coarse
+    vertices, and which of the tied ones is among its `transfer_neighbors` largest was decided
+    by round-off, hence by the numbering (1.1e-4 of the diagonal here). Ties within 1e-12 now
+    go to the lower coarse index (coarse vertices are numbered by position)."""
+    v, f = shapes.tube(length=3.0, radius=0.7, n_around=7, n_along=2)
+    v = v @ rotation([1, 2, 3], 0.7).T
+    rng = np.random.default_rng(0)
+    ex = np.stack([v, v + 0.1 * np.sin(v @ rng.normal(size=(3, 3))) @ rng.normal(size=(3, 3))])
+    handles = [np.arange(3), np.arange(len(v) - 4, len(v))]
+    kw = dict(rotation_iterations=500, gauge_steps=50, rotation_tolerance=1e-12, coarse=17)
+    kw["transfer_neighbors"] = 5
+    hp = [0.5 * (ex[0][h] + ex[1][h]) + 0.01 for h in handles]
+    X = md.PoseSpaceDeformer(v, f, ex, handles, **kw).deform(hp)
+    for seed in range(4):
+        r = Relabelling(v, f, np.random.default_rng(seed))
+        ex2 = np.stack([r.per_vertex(x) for x in ex])
+        d2 = md.PoseSpaceDeformer(
+            r.vertices, r.faces, ex2, [r.vertex_ids(h) for h in handles], **kw
+        )
+        assert np.abs(r.to_original(d2.deform(hp)) - X).max() < 1e-9 * diag(v), seed
+
+
 def test_frame_transform_moves_the_whole_model(scene):
     v, f, ex, handles = scene
     d = md.PoseSpaceDeformer(v, f, ex, handles, frame=2)
@@ -335,14 +466,12 @@ def test_bad_input_names_the_argument(scene):
         P(v, f, ex, handles, frozen=[0, 0])
     with pytest.raises(ValueError, match=r"handles\[0\]: vertex \d+ belongs to a frozen face"):
         P(v, f, ex, handles, frozen=[0])
-    with pytest.raises(ValueError, match="position_weight: expected a finite value > 0"):
+    with pytest.raises(ValueError, match=r"position_weight: expected a finite value in \(0, inf\)"):
         P(v, f, ex, handles, position_weight=0.0)
     with pytest.raises(ValueError, match="rotation_energy: expected"):
         P(v, f, ex, handles, rotation_energy="exact")
     with pytest.raises(ValueError, match="have the same pose"):
         P(v, f, np.stack([ex[0], ex[0]]), handles)
-    with pytest.raises(ValueError, match="disconnected parts"):
-        P(np.vstack([v, v + 5]), np.vstack([f, f + len(v)]), [], [handles[0]])
     with pytest.raises(ValueError, match="not used by any face"):
         P(np.vstack([v, [[9.0, 9, 9]]]), f, [], [handles[0]])
     with pytest.raises(ValueError, match="faces: face 1 repeats a vertex"):
@@ -371,6 +500,134 @@ def test_bad_input_names_the_argument(scene):
     # nothing changed: the deformer still works
     X = d.deform(handle_positions(ex[0], handles))
     assert np.abs(X - ex[0]).max() < 1e-6 * diag(v)
+
+
+@pytest.mark.parametrize(
+    "option, value, message",
+    [
+        (
+            "rotation_iterations",
+            2**31,
+            r"rotation_iterations: expected an integer in \[1, 2147483647\]",
+        ),
+        ("gauge_steps", 2**31, r"gauge_steps: expected an integer in \[1, "),
+        ("transfer_neighbors", 2**40, r"transfer_neighbors: expected an integer in \[1, "),
+        ("rotation_iterations", 0, r"rotation_iterations: expected an integer in \[1, "),
+        ("gauge_steps", 2.0, "gauge_steps: expected an integer in .* got float"),
+        ("transfer_neighbors", True, "transfer_neighbors: expected an integer in .* got bool"),
+        (
+            "position_weight",
+            "1",
+            r"position_weight: expected a finite value in \(0, inf\), got str",
+        ),
+        ("position_weight", np.inf, r"position_weight: expected a finite value in \(0, inf\)"),
+        ("rotation_weight", None, r"rotation_weight: expected a finite value in \(0, inf\)"),
+        ("joint_weight", -1.0, r"joint_weight: expected a finite value in \(0, inf\)"),
+        ("rotation_tolerance", None, r"rotation_tolerance: expected a finite value in \(0, 1\)"),
+        ("rotation_tolerance", 1.0, r"rotation_tolerance: expected a finite value in \(0, 1\)"),
+        ("reliability_angle", None, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("reliability_angle", np.nan, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("reliability_angle", 0.0, r"reliability_angle: expected a value in \(0, inf\]"),
+        ("orientation_weight", [1.0], r"orientation_weight: expected a finite value in \[0, inf\)"),
+        ("weight_regularization", -0.1, r"weight_regularization: expected a finite value in \[0, "),
+        ("handle_rotations", "no", "handle_rotations: expected True or False, got str"),
+        ("convex_weights", None, "convex_weights: expected True or False"),
+        ("area_weights", 1, "area_weights: expected True or False, got int"),
+        ("rotation_energy", None, "rotation_energy: expected 'chordal' or 'geodesic', got None"),
+    ],
+)
+def test_bad_options_raise_value_error_naming_the_option(scene, option, value, message):
+    """Every option out of its range or of the wrong type is a ValueError naming it (counts past
+    a C int and strings used to reach pybind or numpy and raise TypeError)."""
+    v, f, ex, handles = scene
+    with pytest.raises(ValueError, match=message):
+        md.PoseSpaceDeformer(v, f, ex, handles, **{option: value})
+
+
+def test_options_accept_numpy_scalars_and_inf_reliability(scene):
+    v, f, ex, handles = scene
+    a = md.PoseSpaceDeformer(
+        v,
+        f,
+        ex,
+        handles,
+        rotation_iterations=np.int64(20),
+        position_weight=np.float32(50),
+        reliability_angle=np.inf,
+        handle_rotations=np.bool_(True),
+    )
+    b = md.PoseSpaceDeformer(
+        v,
+        f,
+        ex,
+        handles,
+        rotation_iterations=20,
+        position_weight=50.0,
+        reliability_angle=float("inf"),
+    )
+    hp = in_between(ex, handles)
+    assert np.array_equal(a.deform(hp), b.deform(hp))
+
+
+@pytest.mark.parametrize("kind", ["scaled by 1e155", "moved by 1e200"])
+def test_handles_beyond_double_range_are_refused_not_nan(scene, kind):
+    """Handle targets rescaled or moved so far that squares overflow used to give NaN positions
+    and NaN example weights. Now a ValueError says to rescale, and nothing changes."""
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles, frame=0)
+    good = in_between(ex, handles)
+    X0, w0 = d.deform(good), d.example_weights
+    far = [p * 1e155 if kind.startswith("scaled") else p + 1e200 for p in good]
+    for call in (d.deform, d.pose_weights):
+        with pytest.raises(ValueError, match=r"handle_positions\[0\]: row 0 lies .* rescale"):
+            call(far)
+    with pytest.raises(ValueError, match="frame_transform: .* rescale"):
+        d.deform(good, frame_transform=np.diag([1.0, 1, 1, 1]) + np.eye(4, k=3) * 1e200)
+    assert np.array_equal(d.example_weights, w0)
+    assert np.array_equal(d.deform(good), X0)
+
+
+@pytest.mark.parametrize("scale", [1e20, 1e45])
+def test_far_but_representable_handles_give_finite_results(scene, scale):
+    """Up to the limit (1e50 mesh sizes from the rest mesh) everything stays finite: scaled
+    handles are far outside the examples, so the weights are bounded constants summing to 1."""
+    v, f, ex, handles = scene
+    d = md.PoseSpaceDeformer(v, f, ex, handles)
+    hp = [p * scale for p in in_between(ex, handles)]
+    X = d.deform(hp)
+    w = d.example_weights
+    assert np.isfinite(X).all() and np.isfinite(w).all()
+    assert abs(w.sum() - 1) < 1e-12 and np.abs(w).max() < 3
+    # the handles still pull their vertices: the tip handle's centroid lands near its target
+    tip = handles[2]
+    assert np.linalg.norm(X[tip].mean(0) - hp[2].mean(0)) < 1e-3 * scale * diag(v)
+
+
+def test_examples_beyond_double_range_are_refused_and_large_ones_work(scene):
+    v, f, ex, handles = scene
+    with pytest.raises(ValueError, match=r"examples\[1\]: row \d+ lies .* rescale"):
+        md.PoseSpaceDeformer(v, f, np.stack([ex[0], ex[1] * 1e155]), handles)
+    # A huge but representable example: the pose system is scaled, so the weights are still
+    # exact at the examples (its pose vector is 1e40 times the other's), the big example is
+    # reproduced, and everything is finite (at the small one, a weight of 1e-17 on the big
+    # example is already 1e23 units: no meaningful use mixes such scales).
+    big = np.stack([ex[0], ex[1] * 1e40])
+    d = md.PoseSpaceDeformer(v, f, big, handles)
+    for k in range(2):
+        X = d.deform(handle_positions(big[k], handles))
+        assert np.allclose(d.example_weights, np.eye(2)[k], atol=1e-12)
+        assert np.isfinite(X).all()
+    assert np.abs(X - big[1]).max() < 1e-6 * diag(big[1])
+
+
+def test_multiresolution_far_from_the_origin_is_refused():
+    """The simplifier works in single precision: coordinates past ~1e38 would be infinite."""
+    v, f = shapes.tube(length=10, radius=1, n_around=12, n_along=30)
+    w = v * 1e35 + 1e40
+    with pytest.raises(ValueError, match="coarse: .* single precision"):
+        md.PoseSpaceDeformer(w, f, [], [np.arange(12)], coarse=200)
+    d = md.PoseSpaceDeformer(w, f, [], [np.arange(12)])  # single resolution works
+    assert np.isfinite(d.deform([w[:12]])).all()
 
 
 def test_core_rechecks_indices(scene):
@@ -509,3 +766,84 @@ def test_flat_coarse_mesh_does_not_depend_on_numbering():
     assert corner_sets(d, np.arange(len(v))) == corner_sets(d2, vp)
     X, X2 = d.deform(handle_positions(ex[1], handles)), d2.deform(handle_positions(ex[1], handles))
     assert np.abs(X[vp] - X2).max() < 1e-9 * diag(v)
+
+
+# ------------------------------------------------------------------------------ threads
+
+CONCURRENT = """
+import threading
+import numpy as np
+import matdeform as md
+from matdeform import shapes
+
+md.set_num_threads(2)  # the parallel loops too, also on a one-core machine
+v, f = shapes.tube_with_faces(30000, aspect=8.0)
+L = v[:, 0].max()
+x = v[:, 0] / L
+ex = []
+for k, (bend, twist) in enumerate([(0.0, 0.0), (1.2, 0.5), (-0.9, -0.8), (0.4, 1.5)]):
+    p = v.copy()
+    c, s = np.cos(twist * x), np.sin(twist * x)
+    p[:, 1], p[:, 2] = c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]
+    if bend:
+        rho = L / bend
+        a, rr = p[:, 0] / rho, rho - p[:, 1]
+        p[:, 0], p[:, 1] = rr * np.sin(a), rho - rr * np.cos(a)
+    ex.append(p)
+ex = np.stack(ex)
+handles = [np.flatnonzero(np.abs(x - c) < 0.02) for c in (0.0, 0.5, 1.0)]
+inside = np.isin(f, handles[0]).all(axis=1)
+frame = int(np.flatnonzero(inside)[0])
+rng = np.random.default_rng(0)
+calls = []
+for i in range(10):
+    w = rng.dirichlet(np.ones(len(ex)))
+    shape = np.einsum("k,kvc->vc", w, ex)
+    hp = [shape[h] + rng.normal(scale=0.05, size=(len(h), 3)) for h in handles]
+    T = None
+    if i % 2:  # a frame transform: the first such call builds a solver lazily
+        T = np.eye(4)
+        a = rng.normal(size=3)
+        T[:3, :3] = md.transform_exp(np.zeros((3, 3)), 0.3 * a / np.linalg.norm(a))
+        T[:3, 3] = rng.normal(size=3)
+    calls.append((hp, T))
+
+def make():
+    return md.PoseSpaceDeformer(v, f, ex, handles, frame=frame)
+
+# Expected results from a deformer of their own; the shared one is only ever used concurrently.
+ref = make()
+expect = [ref.deform(hp, frame_transform=T) for hp, T in calls]
+expect_w = [ref.pose_weights(hp, frame_transform=T) for hp, T in calls]
+shared = make()
+wrong = [0, 0]
+
+def work(t):
+    for rep in range(2):
+        for i in range(len(calls)):
+            j = (i + 5 * t) % len(calls)
+            hp, T = calls[j]
+            X = shared.deform(hp, frame_transform=T)
+            wrong[t] += not np.array_equal(X, expect[j])
+            wrong[t] += not np.array_equal(shared.pose_weights(hp, frame_transform=T), expect_w[j])
+            w = shared.example_weights  # some call's weights, never a torn mix
+            wrong[t] += not any(np.array_equal(w, e) for e in expect_w)
+
+threads = [threading.Thread(target=work, args=(t,)) for t in range(2)]
+for t in threads:
+    t.start()
+for t in threads:
+    t.join()
+print("wrong", sum(wrong))
+"""
+
+
+def test_one_deformer_shared_by_two_threads_gives_serial_results():
+    """deform() releases the GIL: two threads calling one deformer must get bit-for-bit the
+    results of serial calls (a fresh interpreter with a timeout, so a deadlock fails)."""
+    from isolated import run_isolated
+
+    rc, out, err = run_isolated(CONCURRENT, timeout=600)
+    assert rc is not None, "concurrent deform() calls hung"
+    assert rc == 0, f"crashed or failed (rc {rc}): {err[-2000:]}"
+    assert out.split()[-2:] == ["wrong", "0"], out

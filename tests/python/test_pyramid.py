@@ -566,15 +566,15 @@ def test_bad_deform_arguments_raise_and_change_nothing():
         with pytest.raises(ValueError, match=r"iterations: expected an integer in \[0, "):
             d.deform(good, iterations=it)
     for tol in (-1.0, np.nan, np.inf, "x", None):
-        with pytest.raises(ValueError, match="tol: expected a finite number"):
+        with pytest.raises(ValueError, match="tol: expected a finite value"):
             d.deform(good, tol=tol)
     for w in (-0.1, np.nan, 1e7, "x"):
-        with pytest.raises(ValueError, match="scale_weight: expected a finite number"):
+        with pytest.raises(ValueError, match="scale_weight: expected a finite value"):
             d.deform(good, scale_weight=w)
     with pytest.raises(ValueError, match="progress: expected a callable or None"):
         d.deform(good, progress=3)
     for every in (-0.1, np.nan, "x"):
-        with pytest.raises(ValueError, match="progress_seconds: expected a finite number"):
+        with pytest.raises(ValueError, match="progress_seconds: expected a finite value"):
             d.deform(good, progress=print, progress_seconds=every)
     with pytest.raises(ValueError, match=r"positions: expected shape"):
         d.reconstruct(v[:3])

@@ -4,148 +4,33 @@ A method is one module here that defines a subclass of :class:`Method` and regis
 instance with :func:`register_method`. The session never branches on the method: it gathers the
 common inputs (mesh, anchors, stiffness), asks the active method to add what it needs, to build a
 solver, and to solve for the current anchor transforms. A fifth method is one more module,
-imported at the bottom of this file.
+imported below.
 """
 
-from __future__ import annotations
-
-from dataclasses import dataclass
-
-import numpy as np
-
-
-@dataclass
-class Result:
-    """What :meth:`Method.solve` returns: positions (n_c,3) of the compacted mesh (float64, or
-    float32 where the solver rounds for the key itself), and whether
-    the solve is final. An iterative method that stopped on its per-update budget before it
-    converged says ``done=False``; the session then keeps updating until it is."""
-
-    positions: np.ndarray
-    done: bool = True
-
-
-class Method:
-    """Interface of a method (the defaults suit a direct, non-iterative solver).
-
-    Class attributes:
-      key          enum identifier (never change it)
-      number       enum value: Blender saves this integer in the .blend (never change it)
-      label        shown in the Method menu (short: the panel shows it at the sidebar's
-                   default width; tests/blender/test_ui.py checks that it fits)
-      description  tooltip
-      anchor_modes anchor modes this method understands (BindError for others)
-      iterative    True: ``solve`` takes an iteration budget and warm-starts from ``state``
-      settings_name / settings_class
-                   the method's own PropertyGroup, registered as
-                   ``obj.material_deform.<settings_name>`` (None: no settings of its own).
-                   Settings the bind depends on go in ``fingerprint`` and get
-                   ``update=properties._settings_changed``: the session then compares the
-                   object with its bound state (changing a setting back makes the bind valid)
-    """
-
-    key = ""
-    number = -1
-    label = ""
-    description = ""
-    anchor_modes = frozenset({"POSITION"})
-    iterative = False
-    settings_name: str | None = None
-    settings_class = None
-
-    def gather(self, obj, inputs, binding: bool) -> None:
-        """Read and validate the method's own inputs into ``inputs.extra`` (and may set
-        ``inputs.region``). Raise BindError with a message for the user; write nothing.
-        ``binding``: Bind is gathering, so read what the bind freezes (e.g. an Empty's
-        orientation) as it is now; otherwise read what the last bind stored."""
-
-    def commit(self, obj, inputs) -> None:
-        """Bind succeeded: store what ``gather(binding=True)`` froze on the object."""
-
-    def fingerprint(self, obj, inputs) -> list:
-        """Strings and arrays that, when they change, make the bind stale."""
-        return []
-
-    # what the fingerprint covers, as the stale message names it
-    fingerprint_what = "method or its settings"
-
-    def build(self, inputs):
-        """Build and return the solver (all the heavy precomputation). Raise BindError."""
-        raise NotImplementedError
-
-    def solve(
-        self, solver, transforms: np.ndarray, state: dict, budget: int | None, progress=None
-    ) -> Result:
-        """Positions for the anchor transforms (k,4,4), float64, each the motion of anchor a
-        since bind in the mesh's local space. ``budget``: iterations for one live update, None
-        to run to convergence (Settle, Bake). ``state`` is kept per object between calls.
-        ``progress``: None or ``progress(fraction, text)``, which a long solve may call now and
-        then (Settle's progress bar and status text)."""
-        raise NotImplementedError
-
-    def check_live(self, obj, entry, depsgraph) -> None:
-        """Cheap per-update check of method inputs that can change without an edit the
-        session sees (raise BindError to stop updating)."""
-
-    def draw(self, layout, obj) -> None:
-        """The method's own settings, drawn below the common panel controls (in the Deform
-        subpanel, at the sidebar's default width: short labels, a search field's label on a
-        line of its own)."""
-
-    def live_budget(self, obj) -> int | None:
-        """Iterations per live update (iterative methods), None to converge every update."""
-        return None
-
-    def status(self, state: dict) -> tuple[bool, str] | None:
-        """(converged, text) about the last solve of an iterative method, e.g. the sweeps it
-        took and its last move; Settle reports it and the panel shows it. None: nothing to say
-        (direct methods)."""
-        return None
-
-    def seed(self, solver, state: dict, positions: np.ndarray) -> None:
-        """An iterative method's warm start from positions (n_c,3) the output key already
-        holds (after undo or reloading the file, when ``state`` is empty): the next live
-        update continues from them instead of starting over."""
-
-
-def convergence_status(state: dict, steps: str, hint: str) -> tuple[bool, str] | None:
-    """:meth:`Method.status` of an iterative method whose state holds "spent" (steps of the
-    pose), "move" (last move, fraction of the diagonal) and "converged"."""
-    if "converged" not in state:
-        return None
-    n, move = state["spent"], state["move"]
-    if state["converged"]:
-        return True, f"Converged: {n} {steps}, last move {move:.1e} of the diagonal"
-    return False, f"Not converged after {n} {steps} (last move {move:.1e} of the diagonal): {hint}"
-
-
-_methods: dict[str, Method] = {}
-
-
-def register_method(method: Method) -> Method:
-    taken = {m.number for m in _methods.values()}
-    if not method.key or method.key in _methods or method.number < 0 or method.number in taken:
-        raise ValueError(f"method {method.key!r}: key empty or taken, or number taken")
-    _methods[method.key] = method
-    return method
-
-
-def get(key: str) -> Method:
-    """The method for an enum key; unknown keys (a file from a newer version) raise KeyError."""
-    return _methods[key]
-
-
-def all_methods() -> list[Method]:
-    return list(_methods.values())
-
-
-def enum_items() -> list[tuple[str, str, str, int]]:
-    """Items for the Method EnumProperty, in registration order, with their saved numbers."""
-    return [(m.key, m.label, m.description, m.number) for m in _methods.values()]
-
+from .base import (  # noqa: I001  (unsorted: the methods below come in menu order)
+    Method,
+    Result,
+    all_methods,
+    convergence_status,
+    enum_items,
+    get,
+    register_method,
+    unregister_method,
+)
 
 # registration order is the menu's order; the first method is the default
-from . import material  # noqa: E402, F401, I001  (registers itself)
-from . import edge  # noqa: E402, F401  (registers itself)
-from . import pose_space  # noqa: E402, F401  (registers itself)
-from . import pyramid  # noqa: E402, F401  (registers itself)
+from . import material  # noqa: F401  (registers itself)
+from . import edge  # noqa: F401  (registers itself)
+from . import pose_space  # noqa: F401  (registers itself)
+from . import pyramid  # noqa: F401  (registers itself)
+
+__all__ = [
+    "Method",
+    "Result",
+    "all_methods",
+    "convergence_status",
+    "enum_items",
+    "get",
+    "register_method",
+    "unregister_method",
+]

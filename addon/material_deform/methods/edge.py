@@ -29,9 +29,9 @@ from bpy.props import (
     StringProperty,
 )
 
-from .. import bridge
+from .. import bridge, updates
 from ..model import BindError, load_core, settings
-from . import Method, Result, convergence_status, register_method
+from .base import Method, Result, convergence_status, register_method
 
 DIRECTION_ATTR = "md_direction"  # default vector point attribute of the direction field
 _AXES = {"X": 0, "Y": 1, "Z": 2}
@@ -44,18 +44,13 @@ def _is_empty(_self, obj):
 
 
 def _settings_changed(self, context):
-    """A setting the bind depends on: the session compares the object with its bound state
-    (``properties`` imports the methods, so it is looked up late)."""
-    from .. import properties
-
-    properties._settings_changed(self, context)
+    """A setting the bind depends on: the session compares the object with its bound state."""
+    updates.bind_setting(self, context)
 
 
 def _live_changed(self, context):
     """A live setting changed: solve again with it now (no rebind). The session keeps calling
     the live update from a timer until the new result has settled."""
-    from .. import session  # late: session imports the methods
-
     obj = self.id_data
     scene = getattr(context, "scene", None)
     if scene is None or not bridge.is_mesh(obj):
@@ -63,10 +58,7 @@ def _live_changed(self, context):
     s = settings(obj)
     if not (s.bound and s.live and s.method == EdgeMethod.key and obj.mode == "OBJECT"):
         return
-    try:
-        session.apply(obj, scene, force=True)
-    except Exception as exc:  # an update callback must never raise into Blender
-        session.record_failure(obj, str(exc))
+    updates.solve_now(obj, scene)
 
 
 class EdgeSettings(bpy.types.PropertyGroup):
@@ -379,7 +371,9 @@ class EdgeMethod(Method):
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
         return Solver(dfm, rest, constrained, owner_full[verts], dfm.diagonal, len(rest), s["bend"])
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations: ignored for now (the anchor vertices sit alike at 180 and 540 degrees; the
+        # turns are to give the iteration its start)
         p = state.get("params") or _default_params()
         t = np.asarray(transforms, dtype=np.float64)
         r = solver.rest[solver.constrained]
@@ -433,7 +427,7 @@ class EdgeMethod(Method):
     def live_budget(self, obj) -> int:
         return int(edge_settings(obj).live_iterations)
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         s = edge_settings(obj)
         col = layout.column(align=True)
         col.prop(s, "stretch")

@@ -17,7 +17,7 @@ from .. import aniso_map as amap
 from .. import bridge
 from .. import stiffness_map as sm
 from ..model import BindError, load_core, settings
-from . import Method, Result, register_method
+from .base import Method, Result, register_method
 
 
 @dataclass
@@ -170,12 +170,13 @@ class MaterialMethod(Method):
             raise BindError(f"Solver rejected the mesh: {exc}") from exc
         return Solver(d, use_4x4)
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
         t = transforms if solver.use_4x4 else np.ascontiguousarray(transforms[:, :3, :3])
         # Rounded to float32 on the solver's threads, as the key stores it: the live update then
         # neither converts nor allocates a float64 result (~50 us at 50k faces).
         out = np.empty((solver.deformer.num_vertices, 3), np.float32)
-        return Result(solver.deformer.deform(t, out=out))
+        # the anchors' turns: Eq. 2 blends these logs (None: the principal ones)
+        return Result(solver.deformer.deform(t, out=out, rotation_vectors=rotations))
 
     def check_live(self, obj, entry, depsgraph) -> None:
         """Rebind is needed if the anisotropy axes moved since bind. The axes come from an SVD
@@ -193,7 +194,7 @@ class MaterialMethod(Method):
             raise BindError("Axes Empty changed since bind - click Rebind")
         entry.state["axes_checked"] = key
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         s = settings(obj)
         layout.prop(s, "anisotropic")
         if s.anisotropic:

@@ -28,20 +28,18 @@ from bpy.props import BoolProperty, IntProperty, StringProperty
 
 from .. import anchor_math as am
 from .. import aniso_map as amap
-from .. import bridge
+from .. import bridge, updates
 from .. import stiffness_map as sm
 from ..model import BindError, load_core, settings
-from . import Method, Result, register_method
+from .base import Method, Result, register_method
 
 FRAME = "FRAME"
 
 
 def _changed(self, context):
-    """A setting the bind depends on changed (what properties._settings_changed does; that
-    module imports the methods, so it cannot be imported here)."""
-    from .. import session
-
-    session.settings_changed(self.id_data, getattr(context, "scene", None))
+    """A setting the bind depends on changed: the session compares the object with its bound
+    state."""
+    updates.bind_setting(self, context)
 
 
 class MaterialDeformPoseSpaceSettings(bpy.types.PropertyGroup):
@@ -299,7 +297,8 @@ class PoseSpaceMethod(Method):
             rot = np.stack([rf.T @ _rotation(transforms[j]) for j in solver.joints])
         return hp, rot
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations ignored: the core takes joints as matrices (docs/pose_space.md, turns)
         hp, rot = self._targets(solver, transforms)
         x = solver.deformer.deform(hp, rot)
         state["weights"] = solver.deformer.example_weights
@@ -329,13 +328,13 @@ class PoseSpaceMethod(Method):
             if not np.array_equal(buf, ex):
                 raise BindError(f"Example shape key '{name}' changed since bind - click Rebind")
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         s = settings(obj)
         ps = s.pose_space
         names = example_names(obj)
         layout.label(text="Examples (shape keys):")
         layout.prop(s, "learn_filter", text="Keys")
-        readout = weights_readout(obj)
+        readout = weights_readout(entry)
         if not names:
             layout.label(text="No example keys", icon="ERROR")
         elif readout is None:
@@ -366,12 +365,10 @@ def _triangle_count(mesh) -> int:
     return int(n.sum()) - 2 * len(n)
 
 
-def weights_readout(obj) -> list[tuple[str, float]] | None:
+def weights_readout(entry) -> list[tuple[str, float]] | None:
     """(example key, weight) of the last live update (at the bind pose: the weights there), or
-    None when the object has no built pose-space solver."""
-    from .. import session  # late: session imports the methods
-
-    entry = session.cached_entry(obj)
+    None when there is no built pose-space solver. ``entry``: the object's cache entry
+    (``session.cached_entry(obj)``, None when there is none)."""
     if entry is None or not isinstance(entry.solver, Solver):
         return None
     w = entry.state.get("weights")

@@ -20,15 +20,14 @@ import numpy as np
 from bpy.props import FloatProperty, IntProperty
 
 from .. import anchor_math as am
+from .. import updates
 from ..model import BindError, load_core, settings
-from . import Method, Result, convergence_status, register_method
+from .base import Method, Result, convergence_status, register_method
 
 
 def _live_changed(self, context):
     """A live setting (no rebind): solve the current pose again with it."""
-    from .. import session  # late: session imports methods
-
-    session.resolve_live(self.id_data)
+    updates.live_setting(self, context)
 
 
 class PyramidSettings(bpy.types.PropertyGroup):
@@ -176,7 +175,9 @@ class PyramidMethod(Method):
         t = np.asarray(transforms, np.float64)[solver.owner]
         return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
 
-    def solve(self, solver, transforms, state, budget, progress=None) -> Result:
+    def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
+        # rotations: ignored for now (the control vertices sit alike at 180 and 540 degrees; the
+        # turns are to give the iteration its start)
         # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
         # before any live update: the defaults then)
         tol, weight, most = state.get("settings", (1e-6, 0.003, 100))
@@ -238,7 +239,7 @@ class PyramidMethod(Method):
         p = settings(obj).pyramid
         entry.state["settings"] = (float(p.tolerance), float(p.scale_weight), int(p.max_iterations))
 
-    def draw(self, layout, obj) -> None:
+    def draw(self, layout, obj, entry) -> None:
         p = settings(obj).pyramid
         layout.prop(p, "live_iterations", text="Per Update")
         layout.prop(p, "tolerance")

@@ -35,6 +35,8 @@ struct DeformerOptions {
 //    and each component keeps its vertex mean at rest (factored on the first such call, then
 //    cached).
 //  - with a region, its boundary vertices are always fixed at rest in addition.
+//  - a part (vertices joined by faces) with no anchor face and no pinned vertex is fixed at
+//    rest: deform() returns its rest positions bit for bit.
 //
 // Threads: deform() and face_transforms() may be called from several threads at once. Calls on
 // one deformer are serialised (they share its workspaces); calls on different deformers run
@@ -51,12 +53,19 @@ class MaterialDeformer {
 
   // transforms: k 4x4 matrices (bottom row ignored). With has_translation false only the 3x3
   // block is used. pinned_positions: (|pinned|,3) or nullptr. Returns (n,3).
+  // rotation_vectors: (k,3) or nullptr. Row a is a log of the rotation factor R_a of anchor a's
+  // 3x3 block (polar decomposition M = S R), of any length: the caller picks the branch, e.g.
+  // 3 pi about the twist axis for a turn and a half, and the blend uses it in place of R_a's
+  // principal log (angle <= pi). exp(row a) must equal R_a within kRotationVectorTolerance
+  // (rad); otherwise std::invalid_argument, and nothing is changed. nullptr: principal logs.
   Vertices deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-                  const Vertices* pinned_positions) const;
+                  const Vertices* pinned_positions,
+                  const Vectors3* rotation_vectors = nullptr) const;
   // The same, rounded to float32 into out: n rows of 3 floats (C order), what a shape key or a
   // point cache stores; no (n,3) result is allocated per call.
   void deform(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-              const Vertices* pinned_positions, float* out) const;
+              const Vertices* pinned_positions, float* out,
+              const Vectors3* rotation_vectors = nullptr) const;
 
   // (m,k) blending weights on the full mesh (mean of the axes when anisotropic; zero rows
   // outside the region).
@@ -77,7 +86,8 @@ class MaterialDeformer {
   const PoissonRepositioner& repositioner(bool follow) const;
   // deform() on the region, under mutex_: sub_out gets (region vertices,3).
   void solve_region(const std::vector<Eigen::Matrix4d>& transforms, bool has_translation,
-                    const Vertices* pinned_positions, Vertices* sub_out) const;
+                    const Vertices* pinned_positions, const Vectors3* rotation_vectors,
+                    Vertices* sub_out) const;
   std::vector<int> fixed_set(const std::vector<int>& primary) const;
 
   Vertices rest_;                           // full mesh
@@ -99,6 +109,8 @@ class MaterialDeformer {
   // Per fixed vertex of follow_ (its order): the [begin, end) of its anchors in av_anchors_,
   // empty for boundary and non-anchor vertices, so that deform() does no searching.
   std::vector<std::pair<int, int>> follow_anchors_;
+  // Region vertex ids in parts with no anchor face and no pinned vertex: fixed at rest.
+  std::vector<int> still_;
   mutable std::unique_ptr<PoissonRepositioner> follow_;
   mutable std::unique_ptr<PoissonRepositioner> free_;
   // Anchor logs of the last deform(); face_transforms() re-blends them on request, so the

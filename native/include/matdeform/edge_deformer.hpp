@@ -34,13 +34,17 @@ struct EdgeSolveOptions {
 //           + mu sum_e w_e k_e |sigma*_e - (a v_i + (1-a) v_j - b v_l - (1-b) v_m)|^2
 //           - sum_i <g, v_i>,   constrained vertices fixed,
 // where each iteration takes rho*, sigma* from the previous iterate (rest vectors carried by the
-// edge's rest -> current frame), so every iteration solves the same sparse SPD system.
+// edge's rest -> current frame), so every iteration solves the same sparse SPD system. When an
+// anchor (constrained vertices joined by edges) turns by more than 15 degrees from the start,
+// the first iteration also turns those targets by the anchors' fitted rotations, spread over
+// the mesh by the same system (docs/edge.md, "The first step when anchors turn").
 //
 // Defined behaviour:
 //  - boundary edges, non-manifold edges (3+ faces), edges whose two faces have the same third
 //    vertex and edges whose rest faces have no usable normal get no sigma term;
 //  - vertices in a connected part (through edges) without a constrained vertex, and vertices in
-//    no face, are passive: they keep their position in `initial` (rest when none is given);
+//    no face, are passive: solve() returns their rest positions bit for bit (whatever `initial`
+//    holds);
 //  - a system the energy does not determine (e.g. stretch = 0 on a flat part with fewer than
 //    three non-collinear constrained vertices) throws std::invalid_argument.
 // Factors once in the constructor; solve() only assembles right-hand sides and substitutes.

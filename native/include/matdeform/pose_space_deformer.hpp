@@ -85,10 +85,14 @@ struct PoseSpaceStats {
   double ms_gauge = 0, ms_chordal = 0;  // parts of ms_rotations (final chordal solve)
 };
 
-// Not thread-safe: one deform() at a time per deformer (per-call workspace, last weights).
+// Thread-safe: concurrent deform() calls on one deformer take turns (a mutex guards the
+// solvers' workspaces and the last call's weights and stats); different deformers and
+// pose_weights() run concurrently.
 class PoseSpaceDeformer {
  public:
-  // rest (n,3); faces (m,3), connected, every vertex used, no degenerate face; examples: p >= 0
+  // rest (n,3); faces (m,3), every vertex used, no degenerate face (a connected part with no
+  // handle vertex, frozen face, frame face or rotational face is output at rest, bit for bit;
+  // each other part is solved in its own rotation and translation gauge); examples: p >= 0
   // arrays (n,3) with the connectivity of rest; handles: h >= 0 disjoint non-empty vertex lists.
   // Throws std::invalid_argument on bad input.
   PoseSpaceDeformer(const Vertices& rest, const Faces& faces, const std::vector<Vertices>& examples,
@@ -111,9 +115,10 @@ class PoseSpaceDeformer {
                                const Matrix3Array* rotations,
                                const Eigen::Matrix4d* frame_transform = nullptr) const;
 
-  // (p,) weights of the last deform() (empty before the first call or with p = 0).
-  const Eigen::VectorXd& example_weights() const;
-  const PoseSpaceStats& last_stats() const;
+  // (p,) weights of the last deform() (empty before the first call or with p = 0), and its
+  // stats. Copies: another thread's deform() may replace them at any time.
+  Eigen::VectorXd example_weights() const;
+  PoseSpaceStats last_stats() const;
 
   int num_examples() const;
   int num_handles() const;

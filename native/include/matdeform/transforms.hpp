@@ -30,6 +30,14 @@ constexpr double kMaxLogStretch = 709.0;
 // by at most this relative amount, so deformed positions move by about 1e-6 of the mesh size.
 constexpr double kSimilarityTolerance = 1e-6;
 
+// Largest angle, in radians, by which exp(v) of a caller's rotation vector v (an unwrapped log:
+// any length) may differ from the rotation it stands for. Blender stores matrices in float32
+// (~1e-7 rad per matrix, a few per transform) and a float32 vector of a few turns is rounded by
+// ~1e-6 rad: 1e-4 leaves a wide margin for both, and any real mistake (another frame's or
+// another anchor's vector, degrees for radians, a wrong axis) is far above it. Disagreeing this
+// little, the blend moves a vertex by at most ~1e-4 of its distance to the anchor.
+constexpr double kRotationVectorTolerance = 1e-4;
+
 struct TransformLog {
   Eigen::Matrix3d log_stretch = Eigen::Matrix3d::Zero();  // symmetric
   Eigen::Vector3d rotation = Eigen::Vector3d::Zero();     // axis * angle, angle in [0, pi]
@@ -40,6 +48,27 @@ struct TransformLog {
 Eigen::Vector3d rotation_log(const Eigen::Matrix3d& R);
 // Rodrigues formula, exact also for tiny angles.
 Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega);
+
+// Angle in [0, pi] of the rotation between exp(v) and R (R orthonormalised first): how far the
+// rotation vector v is from being a log of R. NaN when exp(v) is not finite (|v| ~ 1e154).
+double rotation_vector_mismatch(const Eigen::Vector3d& v, const Eigen::Matrix3d& R);
+
+// The log of rotation R (orthonormalised first) nearest to `near`. R's logs are
+// (theta + 2 pi n) u for its axis u, angle theta and every integer n, so this picks the whole
+// number of turns closest to near. Where R is within kRotationVectorTolerance of the identity
+// (its axis is then round-off) and near is at least half a turn long, it returns near's own
+// axis times the nearest multiple of 2 pi (plus R's angle along it): exp of that differs from R
+// by at most R's angle, so the turns survive float noise at a whole turn.
+Eigen::Vector3d rotation_log_near(const Eigen::Matrix3d& R, const Eigen::Vector3d& near);
+
+// Rotation vectors continuous along sequences of rotations. frames holds count * k maps with
+// det > 0, frame-major (frame t of sequence a at t * k + a); each one's rotation factor (polar
+// decomposition) is used. Frame 0 of sequence a is rotation_log_near(R, start[a]) (start empty:
+// the principal log), every later frame rotation_log_near(R, previous vector). A step of more
+// than pi between two frames cannot be told from the opposite step of less than pi: the shorter
+// is taken. Throws std::invalid_argument for a wrong size or start, non-finite entries, det <= 0.
+std::vector<Eigen::Vector3d> unwrap_rotations(const Matrix3Array& frames, int k,
+                                              const std::vector<Eigen::Vector3d>& start);
 
 // M = S * R with S symmetric positive definite, R proper rotation. Throws
 // std::invalid_argument unless det M > 0 and M is finite (and S stays finite).

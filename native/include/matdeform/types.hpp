@@ -10,6 +10,7 @@ using Vertices = Eigen::Matrix<double, Eigen::Dynamic, 3, Eigen::RowMajor>;  // 
 using Faces = Eigen::Matrix<int, Eigen::Dynamic, 3, Eigen::RowMajor>;        // (m,3) triangles
 using IndexPairs = Eigen::Matrix<int, Eigen::Dynamic, 2, Eigen::RowMajor>;   // (E,2) index pairs
 using RowMatrix = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>;
+using Vectors3 = Vertices;  // (k,3) vectors, e.g. one rotation vector (axis * angle) per anchor
 using Matrix3Array = std::vector<Eigen::Matrix3d>;  // one 3x3 per face or anchor
 using AnchorList = std::vector<std::vector<int>>;   // per anchor: face indices
 

@@ -1,6 +1,8 @@
 // Harmonic blending weights under bending stiffness (Popa et al. 2006, Eq. 1).
 #pragma once
 
+#include <vector>
+
 #include "matdeform/types.hpp"
 
 namespace matdeform {
@@ -15,6 +17,20 @@ namespace matdeform {
 // One sparse Cholesky factorisation, all k right-hand sides in one solve.
 RowMatrix harmonic_weights(int num_faces, const IndexPairs& pairs, const Eigen::VectorXd& phi,
                            const AnchorList& anchors);
+
+// The `keep` largest entries of every row of harmonic_weights, without the dense (m,k) matrix:
+// the k columns are solved a block at a time (one factorisation) and each row keeps its best
+// entries, larger weight first, then lower anchor for weights within 1e-12 (ties, so that
+// round-off does not choose between symmetric anchors), only entries > 0. Memory is
+// O(m (block + keep)) instead of 8 m k bytes (gigabytes at a million faces and 500 anchors).
+// Row f owns idx/w[ptr[f] .. ptr[f+1]); weights as computed (not renormalised). keep >= 1.
+struct SparseWeights {
+  std::vector<int> ptr, idx;
+  std::vector<double> w;
+};
+SparseWeights largest_harmonic_weights(int num_faces, const IndexPairs& pairs,
+                                       const Eigen::VectorXd& phi, const AnchorList& anchors,
+                                       int keep);
 
 // Throws std::invalid_argument unless every anchor is non-empty, in range and no face belongs to
 // two anchors.
