@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <mutex>
 #include <stdexcept>
 #include <string>
 
@@ -50,6 +51,10 @@ struct PyramidDeformer::Impl {
   std::vector<double> damp;  // per free vertex: the diagonal of sum 2 C, the damping's scale
   std::unique_ptr<SparseCholesky> chol;
   std::unique_ptr<pyramid::Start> start;
+  // deform() holds `busy` for its whole run: the work buffers below, the factor and the last
+  // call's statistics are shared by every call on this deformer (docs/core.md: one deformer may
+  // be called from several threads).
+  std::mutex busy;
   // Work buffers.
   std::vector<Fit> fits;
   std::vector<int> term_off;  // per pyramid: kTerms * 3M doubles of u at terms[term_off[c]]
@@ -479,6 +484,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
                                  const PyramidSolveOptions& options) {
   const ParkWorkersOnExit park;
   Impl& S = *impl_;
+  const std::lock_guard<std::mutex> lock(S.busy);
   const int n = num_vertices();
   const int k = static_cast<int>(control_.size());
   if (control_positions.rows() != k) {

@@ -387,6 +387,39 @@ def test_one_or_two_threads_give_the_same_bits():
     assert A.tobytes() == B.tobytes()
 
 
+def test_one_deformer_shared_by_two_threads_gives_serial_results():
+    """deform() releases the GIL and keeps its Newton workspace (fits, Hessian terms, the
+    factor) in the deformer: two threads calling one deformer at once must each get bit for bit
+    what a serial call gives (calls take turns). Unserialised, the threads overwrite each
+    other's terms and factor: wrong results or a failed factorisation."""
+    import threading
+
+    v, f = shapes.tube(length=10.0, radius=0.5, n_around=24, n_along=80)
+    lo = np.flatnonzero(v[:, 0] < 0.2)
+    hi = np.flatnonzero(v[:, 0] > 9.8)
+    d = md.PyramidDeformer(v, f, np.concatenate([lo, hi]))
+    targets = [bent(v, lo, hi, a) for a in (0.4, 0.9)]
+    serial = [d.deform(t) for t in targets]
+    got, errors = {}, []
+
+    def work(t):
+        try:
+            for rep in range(3):
+                got[t, rep] = d.deform(targets[t])
+        except Exception as e:  # reported below: a thread's exception is otherwise lost
+            errors.append(e)
+
+    threads = [threading.Thread(target=work, args=(t,), daemon=True) for t in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join(timeout=120)
+    assert not any(t.is_alive() for t in threads), "deadlock or runaway: threads still running"
+    assert not errors, errors
+    for (t, rep), X in got.items():
+        assert X.tobytes() == serial[t].tobytes(), f"thread {t}, call {rep}"
+
+
 def test_warm_start_budget_and_step_history():
     v, f, lo, hi = bar()
     ctrl = np.concatenate([lo, hi])

@@ -74,7 +74,9 @@ class PyramidDeformer {
   PyramidDeformer& operator=(const PyramidDeformer&) = delete;
 
   // control_positions (k,3) in the order of `control`. Returns (n,3): vertices that no control
-  // reaches through edges are exactly at rest. Not thread-safe (it records the statistics below).
+  // reaches through edges are exactly at rest. Thread-safe: concurrent calls on one deformer take
+  // turns (they share its workspace and the statistics below, which a concurrent call may
+  // overwrite before they are read).
   // Throws std::invalid_argument for bad input (also positions beyond the core's size range,
   // "rescale the mesh") and std::runtime_error if the energy stops being finite.
   Vertices deform(const Vertices& control_positions, const PyramidSolveOptions& options);
