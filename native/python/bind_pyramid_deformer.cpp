@@ -48,7 +48,8 @@ void bind_pyramid_deformer(py::module_& m) {
           "deform",
           [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
              std::optional<Vertices> initial, double scale_weight,
-             std::optional<py::function> progress, double progress_seconds) {
+             std::optional<py::function> progress, double progress_seconds,
+             std::optional<Vectors3> rotation_vectors) {
             PyramidSolveOptions o;
             o.progress_seconds = progress_seconds;
             if (progress) {
@@ -64,19 +65,21 @@ void bind_pyramid_deformer(py::module_& m) {
             o.tol = tol;
             o.scale_weight = scale_weight;
             o.initial = initial ? &*initial : nullptr;
+            o.rotation_vectors = rotation_vectors ? &*rotation_vectors : nullptr;
             py::gil_scoped_release release;
             return self.deform(control_positions, o);
           },
           py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
           py::arg("scale_weight"), py::arg("progress") = py::none(),
-          py::arg("progress_seconds") = 0.1)
+          py::arg("progress_seconds") = 0.1, py::arg("rotation_vectors") = py::none())
       .def(
           "start",
-          [](const PyramidDeformer& self, const Vertices& control_positions) {
+          [](const PyramidDeformer& self, const Vertices& control_positions,
+             std::optional<Vectors3> rotation_vectors) {
             py::gil_scoped_release release;
-            return self.start(control_positions);
+            return self.start(control_positions, rotation_vectors ? &*rotation_vectors : nullptr);
           },
-          py::arg("control_positions"))
+          py::arg("control_positions"), py::arg("rotation_vectors") = py::none())
       .def(
           "energy",
           [](const PyramidDeformer& self, const Vertices& X, double scale_weight) {

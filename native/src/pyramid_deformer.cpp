@@ -443,15 +443,27 @@ void check_positions(const Vertices& X, const char* name) {
 }
 }  // namespace
 
-Vertices PyramidDeformer::start(const Vertices& control_positions) const {
+namespace {
+void check_vector_rows(const Vectors3* v, int k) {
+  if (v && v->rows() != k) {
+    throw std::invalid_argument("rotation_vectors: expected shape (" + std::to_string(k) +
+                                ",3), one per control, got " + std::to_string(v->rows()) +
+                                " rows");
+  }
+}
+}  // namespace
+
+Vertices PyramidDeformer::start(const Vertices& control_positions,
+                                const Vectors3* rotation_vectors) const {
   const int k = static_cast<int>(control_.size());
   if (control_positions.rows() != k) {
     throw std::invalid_argument("control_positions: expected shape (" + std::to_string(k) +
                                 ",3), got " + std::to_string(control_positions.rows()) + " rows");
   }
   check_positions(control_positions, "control_positions");
+  check_vector_rows(rotation_vectors, k);
   const ParkWorkersOnExit park;
-  return (*impl_->start)(control_positions);
+  return (*impl_->start)(control_positions, rotation_vectors);
 }
 
 double PyramidDeformer::energy(const Vertices& X, double scale_weight, Vertices* gradient) const {
@@ -492,6 +504,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
                                 ",3), got " + std::to_string(control_positions.rows()) + " rows");
   }
   check_positions(control_positions, "control_positions");
+  check_vector_rows(options.rotation_vectors, k);
   if (options.max_iterations < 0) throw std::invalid_argument("iterations: expected >= 0");
   if (!(options.tol >= 0) || !std::isfinite(options.tol)) {
     throw std::invalid_argument("tol: expected a finite value >= 0");
@@ -515,7 +528,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       if (!S.moving[static_cast<size_t>(v)]) X.row(v) = S.placement.rest.row(v);
     }
   } else {
-    X = (*S.start)(control_positions);
+    X = (*S.start)(control_positions, options.rotation_vectors);
   }
   for (int j = 0; j < k; ++j) X.row(control_[static_cast<size_t>(j)]) = control_positions.row(j);
   last_steps_.clear();

@@ -87,7 +87,11 @@ class Start {
   Start(const Vertices& rest, const Faces& faces, const std::vector<int>& control,
         const std::vector<char>& is_free);
   ~Start();
-  Vertices operator()(const Vertices& control_positions) const;
+  // rotation_vectors: nullptr, or (k,3) one axis * angle per control (any length); each
+  // rotation-carrying cluster then blends the log of its fitted rotation that its controls'
+  // vectors give (checked against that rotation), so the field carries whole turns.
+  Vertices operator()(const Vertices& control_positions,
+                      const Vectors3* rotation_vectors = nullptr) const;
 
  private:
   struct Impl;

@@ -11,9 +11,11 @@
 #include <Eigen/Geometry>
 #include <Eigen/SparseCore>
 #include <cmath>
+#include <string>
 #include <utility>
 
 #include "matdeform/mesh.hpp"
+#include "matdeform/transforms.hpp"
 #include "pyramid_internal.hpp"
 
 namespace matdeform {
@@ -129,7 +131,7 @@ Start::Start(const Vertices& rest, const Faces& faces, const std::vector<int>& c
 
 Start::~Start() = default;
 
-Vertices Start::operator()(const Vertices& target) const {
+Vertices Start::operator()(const Vertices& target, const Vectors3* rotation_vectors) const {
   const Impl& S = *impl_;
   const int n = static_cast<int>(S.rest.rows());
   const size_t k = S.control.size();
@@ -156,10 +158,42 @@ Vertices Start::operator()(const Vertices& target) const {
   Eigen::Quaterniond qg;
   double lg;
   split(A, &qg, &lg);
-  // 2. The field: rows (qw, qx, qy, qz, log s) per vertex.
+  // 2. The field: rows (qw, qx, qy, qz, log s) per vertex; with rotation vectors (0, rotation
+  // vector, log s) instead: quaternions cannot tell a turn from one and a half, logs can.
+  const bool logs = rotation_vectors != nullptr && !S.rot.empty();
   Eigen::Matrix<double, Eigen::Dynamic, 5, Eigen::RowMajor> field(n, 5);
   for (int v = 0; v < n; ++v) field.row(v) << qg.w(), qg.x(), qg.y(), qg.z(), lg;
-  if (S.field) {
+  if (logs) {
+    // Each cluster's log nearest to its controls' vectors, each checked against that rotation.
+    Vec3 mean = Vec3::Zero();
+    for (const auto& cl : S.rot) {
+      std::vector<Vec3> ac, bc;
+      for (int j : cl)
+        ac.push_back(a[static_cast<size_t>(j)]), bc.push_back(b[static_cast<size_t>(j)]);
+      Mat3 Ac;
+      Vec3 u, w;
+      fit_similarity(ac, bc, &Ac, &u, &w);
+      Eigen::Quaterniond q;
+      double l;
+      split(Ac, &q, &l);
+      const Mat3 R = q.toRotationMatrix();
+      Vec3 near = Vec3::Zero();
+      for (int j : cl) {
+        const Vec3 vj = rotation_vectors->row(j).transpose();
+        check_rotation_vector(vj, R, "rotation_vectors[" + std::to_string(j) + "]",
+                              "the rotation fitted to its control cluster");
+        near += vj;
+      }
+      const Vec3 r = rotation_log_near(R, near / static_cast<double>(cl.size()));
+      mean += r;
+      for (int j : cl) field.row(S.control[static_cast<size_t>(j)]) << 0.0, r.x(), r.y(), r.z(), l;
+    }
+    // Where no cluster fixes it, the overall fit's log nearest to the clusters' mean.
+    const Vec3 rg =
+        rotation_log_near(qg.toRotationMatrix(), mean / static_cast<double>(S.rot.size()));
+    for (size_t i = 0; i < S.field_vertex.size(); ++i)
+      field.row(S.field_vertex[i]) << 0.0, rg.x(), rg.y(), rg.z(), lg;
+  } else if (S.field) {
     for (const auto& cl : S.rot) {
       std::vector<Vec3> ac, bc;
       for (int j : cl)
@@ -176,6 +210,8 @@ Vertices Start::operator()(const Vertices& target) const {
         field.row(S.control[static_cast<size_t>(j)]) << sgn * q.w(), sgn * q.x(), sgn * q.y(),
             sgn * q.z(), l;
     }
+  }
+  if (S.field) {
     const int u = S.field->rows();
     Eigen::Matrix<double, Eigen::Dynamic, 5, Eigen::ColMajor> rhs(u, 5), sol(u, 5);
     for (int i = 0; i < u; ++i)
@@ -193,6 +229,11 @@ Vertices Start::operator()(const Vertices& target) const {
   // Per-vertex similarity s R.
   std::vector<Mat3> T(static_cast<size_t>(n), Mat3::Identity());
   for (int v = 0; v < n; ++v) {
+    if (logs) {
+      const Vec3 r(field(v, 1), field(v, 2), field(v, 3));
+      T[static_cast<size_t>(v)] = std::exp(field(v, 4)) * rotation_exp(r);
+      continue;
+    }
     Eigen::Quaterniond q(field(v, 0), field(v, 1), field(v, 2), field(v, 3));
     if (!(q.norm() > 1e-6)) q = qg;  // opposite turns cancelled: no rotation to blend
     q.normalize();

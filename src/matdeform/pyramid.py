@@ -12,7 +12,14 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_count, as_faces, as_index_set, as_real, as_vertices
+from ._validate import (
+    as_count,
+    as_faces,
+    as_index_set,
+    as_real,
+    as_rotation_vectors,
+    as_vertices,
+)
 
 #: Vertex kinds in ``pyramid_coordinates(...)["kind"]``.
 KIND_INTERIOR, KIND_BOUNDARY, KIND_FOLLOWER, KIND_ISOLATED = 0, 1, 2, 3
@@ -94,6 +101,7 @@ class PyramidDeformer:
         scale_weight: float = DEFAULT_SCALE_WEIGHT,
         progress=None,
         progress_seconds: float = 0.1,
+        rotation_vectors=None,
     ) -> np.ndarray:
         """Deformed positions (n,3) float64 with the control vertices at control_positions.
 
@@ -116,6 +124,14 @@ class PyramidDeformer:
             iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) and
             after the last one, on the calling thread. An exception it raises ends the call and
             propagates. The result does not depend on it.
+        rotation_vectors : None, or (k,3) float, one rotation vector (axis * angle, radians,
+            any length, e.g. from ``unwrap_rotations``) per control in the order of
+            ``control``, typically its anchor's. The start then blends each control cluster's
+            rotation as the log these vectors give, so it carries turns past half a turn (a
+            540-degree twist starts twisted, not at 180). Each vector of a cluster that carries
+            a rotation (at least three controls joined by edges, not on a line) must be a log
+            of the rotation fitted to that cluster: its exp within 1e-4 rad of it, else
+            ValueError; other controls' vectors are not used. Not used with ``initial``.
 
         After the call ``last_iterations`` is the number of Newton iterations, ``last_step``
         the last one's largest vertex move (fraction of the diagonal; NaN after 0 iterations),
@@ -131,12 +147,16 @@ class PyramidDeformer:
         if progress is not None and not callable(progress):
             raise ValueError(f"progress: expected a callable or None, got {progress!r}")
         every = as_real(progress_seconds, "progress_seconds", 0.0)
-        return self._core.deform(x, it, t, x0, w, progress, every)
+        rv = None if rotation_vectors is None else as_rotation_vectors(rotation_vectors, k)
+        return self._core.deform(x, it, t, x0, w, progress, every, rv)
 
-    def start(self, control_positions) -> np.ndarray:
-        """The start deform() uses without ``initial`` (n,3), from control_positions (k,3)."""
-        x = as_vertices(control_positions, "control_positions", rows=len(self._control))
-        return self._core.start(x)
+    def start(self, control_positions, rotation_vectors=None) -> np.ndarray:
+        """The start deform() uses without ``initial`` (n,3), from control_positions (k,3) and
+        optional rotation_vectors (k,3) as in deform()."""
+        k = len(self._control)
+        x = as_vertices(control_positions, "control_positions", rows=k)
+        rv = None if rotation_vectors is None else as_rotation_vectors(rotation_vectors, k)
+        return self._core.start(x, rv)
 
     def energy(self, positions, scale_weight: float = DEFAULT_SCALE_WEIGHT):
         """The energy deform() minimises (float, squared mesh units) and its gradient (n,3) at

@@ -31,7 +31,15 @@ _TODO = (
 METHODS = [
     pytest.param("MATERIAL", id="material"),
     pytest.param("EDGE", id="edge", marks=pytest.mark.skip(reason=_TODO.format("edge-based"))),
-    pytest.param("PYRAMID", id="pyramid", marks=pytest.mark.skip(reason=_TODO.format("pyramid"))),
+    pytest.param(
+        "PYRAMID",
+        id="pyramid",
+        marks=pytest.mark.skip(
+            reason="pyramid: its start carries the turns (rotation_vectors), but with controls "
+            "on the end anchors only, the energy's minimum unwinds a tube twisted past half a "
+            "turn (docs/pyramid.md, limits)"
+        ),
+    ),
     pytest.param(
         "POSE_SPACE",
         id="pose_space",

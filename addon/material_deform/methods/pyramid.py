@@ -176,8 +176,9 @@ class PyramidMethod(Method):
         return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
 
     def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
-        # rotations: ignored for now (the control vertices sit alike at 180 and 540 degrees; the
-        # turns are to give the iteration its start)
+        # rotations: the anchors' unwrapped vectors; each control gets its anchor's, so a start
+        # built from the controls (Settle, Bake) carries turns past half a turn. A warm start
+        # carries them already.
         # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
         # before any live update: the defaults then)
         tol, weight, most = state.get("settings", (1e-6, 0.003, 100))
@@ -196,16 +197,34 @@ class PyramidMethod(Method):
         else:
             it, x0 = min(budget, max(most - spent, 1)), state.get("x")
         d = solver.deformer
+        vectors = (
+            None if rotations is None or x0 is not None else np.asarray(rotations)[solver.owner]
+        )
         try:
-            x = d.deform(
-                targets,
-                iterations=it,
-                tol=tol,
-                initial=x0,
-                scale_weight=weight,
-                progress=None if progress is None else _settle_report(progress, it, tol),
-                progress_seconds=PROGRESS_SECONDS,
-            )
+            try:
+                x = d.deform(
+                    targets,
+                    iterations=it,
+                    tol=tol,
+                    initial=x0,
+                    scale_weight=weight,
+                    progress=None if progress is None else _settle_report(progress, it, tol),
+                    progress_seconds=PROGRESS_SECONDS,
+                    rotation_vectors=vectors,
+                )
+            except ValueError as exc:
+                # A sheared or unevenly scaled anchor has no rotation its controls' fit
+                # reproduces to 1e-4 rad: start from the principal logs instead.
+                if vectors is None or not str(exc).startswith("rotation_vectors"):
+                    raise
+                x = d.deform(
+                    targets,
+                    iterations=it,
+                    tol=tol,
+                    scale_weight=weight,
+                    progress=None if progress is None else _settle_report(progress, it, tol),
+                    progress_seconds=PROGRESS_SECONDS,
+                )
             # A safety net: the library only lowers the energy from its start, but a live chain
             # starts from the last result (or an undone key), so bound the result by the pose
             # itself. A result spans about the rest diagonal times the controls' spread

@@ -56,6 +56,13 @@ struct PyramidSolveOptions {
   // (n,3) start (control rows are replaced); nullptr: the start built from the controls alone
   // (harmonic blend of the control clusters' similarities, docs/pyramid.md).
   const Vertices* initial = nullptr;
+  // (k,3) or nullptr: one rotation vector (axis * angle, radians, any length) per control, in
+  // the order of `control`, e.g. its anchor's unwrapped rotation. The start then blends the
+  // control clusters' rotations as these logs, so it carries turns past half a turn (a twist
+  // of 540 degrees starts twisted, not at 180). Each control's vector of a cluster that carries a
+  // rotation must be a log of the rotation fitted to that cluster (within
+  // kRotationVectorTolerance); other controls' vectors are not used. Not used with `initial`.
+  const Vectors3* rotation_vectors = nullptr;
   // Called on the calling thread after an iteration with (iterations so far, that iteration's
   // step as a fraction of the rest diagonal), at most every progress_seconds (0: after every
   // one) and after the converged one. An exception it throws ends deform() and propagates.
@@ -82,7 +89,8 @@ class PyramidDeformer {
   Vertices deform(const Vertices& control_positions, const PyramidSolveOptions& options);
 
   // The start deform() uses without `initial` (n,3), for inspection and tests.
-  Vertices start(const Vertices& control_positions) const;
+  Vertices start(const Vertices& control_positions,
+                 const Vectors3* rotation_vectors = nullptr) const;
 
   // Every vertex (controls too) placed once from its neighbours' positions in X (n,3) by the
   // paper's Eq. 1-2: reconstruct(rest, false) gives back the rest mesh. stretch: the paper's
