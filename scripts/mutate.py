@@ -298,7 +298,7 @@ MUTATIONS = [
     M(
         "P10",
         "native/src/pyramid_deformer.cpp",
-        "if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope) {",
+        "if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
         "if (std::isfinite(Et)) {",
         "pyramid Newton: every step is accepted, also one that raises the energy",
     ),
