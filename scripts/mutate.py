@@ -419,7 +419,7 @@ MUTATIONS = [
     ),
     M(
         "TW2",
-        "native/src/deformer.cpp",
+        "native/src/transforms.cpp",
         "if (!(err <= kRotationVectorTolerance)) {",
         "if (!(err <= 100 * kRotationVectorTolerance)) {",
         "rotation vectors 100x farther from their anchor's rotation are accepted",
@@ -427,9 +427,23 @@ MUTATIONS = [
     M(
         "TW3",
         "native/src/deformer.cpp",
-        "rotation_vector_mismatch(va, rotation_exp((*logs)[a].rotation));",
-        "rotation_vector_mismatch(va, rotation_exp((*logs)[0].rotation));",
+        "rotation_exp((*logs)[a].rotation),",
+        "rotation_exp((*logs)[0].rotation),",
         "every rotation vector is checked against anchor 0's rotation",
+    ),
+    M(
+        "PT1",
+        "native/src/pyramid_start.cpp",
+        "const bool logs = rotation_vectors != nullptr && !S.rot.empty();",
+        "const bool logs = false;",
+        "the pyramid start ignores the given rotation vectors (quaternions: principal turns)",
+    ),
+    M(
+        "PT2",
+        "native/src/pyramid_start.cpp",
+        "const Vec3 r = rotation_log_near(R, near / static_cast<double>(cl.size()));",
+        "const Vec3 r = rotation_log(R);",
+        "a control cluster blends the principal log of its rotation, not the given branch",
     ),
     M(
         "TW4",

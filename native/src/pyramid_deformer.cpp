@@ -447,8 +447,7 @@ namespace {
 void check_vector_rows(const Vectors3* v, int k) {
   if (v && v->rows() != k) {
     throw std::invalid_argument("rotation_vectors: expected shape (" + std::to_string(k) +
-                                ",3), one per control, got " + std::to_string(v->rows()) +
-                                " rows");
+                                ",3), one per control, got " + std::to_string(v->rows()) + " rows");
   }
 }
 }  // namespace

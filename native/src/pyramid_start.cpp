@@ -163,19 +163,20 @@ Vertices Start::operator()(const Vertices& target, const Vectors3* rotation_vect
   const bool logs = rotation_vectors != nullptr && !S.rot.empty();
   Eigen::Matrix<double, Eigen::Dynamic, 5, Eigen::RowMajor> field(n, 5);
   for (int v = 0; v < n; ++v) field.row(v) << qg.w(), qg.x(), qg.y(), qg.z(), lg;
-  if (logs) {
-    // Each cluster's log nearest to its controls' vectors, each checked against that rotation.
-    Vec3 mean = Vec3::Zero();
-    for (const auto& cl : S.rot) {
-      std::vector<Vec3> ac, bc;
-      for (int j : cl)
-        ac.push_back(a[static_cast<size_t>(j)]), bc.push_back(b[static_cast<size_t>(j)]);
-      Mat3 Ac;
-      Vec3 u, w;
-      fit_similarity(ac, bc, &Ac, &u, &w);
-      Eigen::Quaterniond q;
-      double l;
-      split(Ac, &q, &l);
+  Vec3 mean = Vec3::Zero();  // of the clusters' logs
+  for (const auto& cl : S.rot) {
+    if (!logs && !S.field) break;
+    std::vector<Vec3> ac, bc;
+    for (int j : cl)
+      ac.push_back(a[static_cast<size_t>(j)]), bc.push_back(b[static_cast<size_t>(j)]);
+    Mat3 Ac;
+    Vec3 u, w;
+    fit_similarity(ac, bc, &Ac, &u, &w);
+    Eigen::Quaterniond q;
+    double l;
+    split(Ac, &q, &l);
+    if (logs) {
+      // The cluster's log nearest to its controls' vectors, each checked against its rotation.
       const Mat3 R = q.toRotationMatrix();
       Vec3 near = Vec3::Zero();
       for (int j : cl) {
@@ -187,29 +188,20 @@ Vertices Start::operator()(const Vertices& target, const Vectors3* rotation_vect
       const Vec3 r = rotation_log_near(R, near / static_cast<double>(cl.size()));
       mean += r;
       for (int j : cl) field.row(S.control[static_cast<size_t>(j)]) << 0.0, r.x(), r.y(), r.z(), l;
-    }
-    // Where no cluster fixes it, the overall fit's log nearest to the clusters' mean.
-    const Vec3 rg =
-        rotation_log_near(qg.toRotationMatrix(), mean / static_cast<double>(S.rot.size()));
-    for (size_t i = 0; i < S.field_vertex.size(); ++i)
-      field.row(S.field_vertex[i]) << 0.0, rg.x(), rg.y(), rg.z(), lg;
-  } else if (S.field) {
-    for (const auto& cl : S.rot) {
-      std::vector<Vec3> ac, bc;
-      for (int j : cl)
-        ac.push_back(a[static_cast<size_t>(j)]), bc.push_back(b[static_cast<size_t>(j)]);
-      Mat3 Ac;
-      Vec3 u, w;
-      fit_similarity(ac, bc, &Ac, &u, &w);
-      Eigen::Quaterniond q;
-      double l;
-      split(Ac, &q, &l);
+    } else {
       // The same hemisphere as the overall fit: the blend then turns the short way from it.
       const double sgn = q.coeffs().dot(qg.coeffs()) < 0 ? -1.0 : 1.0;
       for (int j : cl)
         field.row(S.control[static_cast<size_t>(j)]) << sgn * q.w(), sgn * q.x(), sgn * q.y(),
             sgn * q.z(), l;
     }
+  }
+  if (logs) {
+    // Where no cluster fixes it, the overall fit's log nearest to the clusters' mean.
+    const Vec3 rg =
+        rotation_log_near(qg.toRotationMatrix(), mean / static_cast<double>(S.rot.size()));
+    for (size_t i = 0; i < S.field_vertex.size(); ++i)
+      field.row(S.field_vertex[i]) << 0.0, rg.x(), rg.y(), rg.z(), lg;
   }
   if (S.field) {
     const int u = S.field->rows();
