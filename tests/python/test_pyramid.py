@@ -583,6 +583,33 @@ def test_the_sliver_capped_cylinder_converges_instead_of_running_away():
     assert d.last_energy < E0
 
 
+def test_no_iteration_raises_the_energy():
+    """Each Newton iteration either lowers the energy (line search, damping) or keeps it, from
+    the start and from a noisy warm start far from the minimum: the energy after k iterations
+    (the same work as the first k of a longer run) never grows with k. A step that raised it
+    would be how a runaway starts."""
+    z = np.load(Path(__file__).parent / "data" / "cylinder_subdivided_ngon_caps.npz")
+    v = z["vertices"].astype(np.float64)
+    bv, bf, lo, hi = bar()
+    noisy = bv + 0.15 * np.random.default_rng(3).normal(size=bv.shape)
+    cases = [
+        (v, z["triangles"], z["controls"], z["targets"], None),
+        (bv, bf, np.concatenate([lo, hi]), bent(bv, lo, hi, 2.5), None),
+        (bv, bf, np.concatenate([lo, hi]), bent(bv, lo, hi, 1.0), noisy),
+    ]
+    for v_, f_, c_, t_, start in cases:
+        d = md.PyramidDeformer(v_, f_, c_)
+        X0 = d.start(t_) if start is None else d.deform(t_, iterations=0, initial=start)
+        energies = [d.energy(X0)[0]]
+        for k in range(1, 41):
+            d.deform(t_, iterations=k, initial=start)
+            energies.append(d.last_energy)
+            if d.last_converged:
+                break
+        rises = np.diff(energies)
+        assert (rises <= 1e-12 * np.abs(energies[:-1])).all(), energies
+
+
 def cat_protocol():
     sys.path.insert(0, str(ROOT / "bench"))
     from bench_quality import Bench
