@@ -1,38 +1,53 @@
-"""Pyramid coordinates: time to converge and sweeps per second at three sizes.
+"""Pyramid coordinates: the timing, convergence and invariance targets in one table.
 
-Meshes (all from data/cat-poses, poses with the same connectivity):
-  * cat 5k: the reference cat decimated to ~5k faces (fast-simplification, QEM), 9 control
-    vertices (4 feet, head tip, tail tip, and three along the back) moved to their positions in
-    each of the nine cat poses (as the paper's walking camel: 9 control vertices);
+    python bench/bench_pyramid.py                  # the target table (two threads)
+    python bench/bench_pyramid.py --repeats 1 --sizes "cat 5k" "cat 14k"
+    python bench/bench_pyramid.py --plot docs/images/pyramid_convergence.png
+
+Meshes (all from data/cat-poses, nine poses with the same connectivity):
+  * cat 5k: the reference cat decimated to ~5k faces (fast-simplification, QEM; benchmark only:
+    pip install fast-simplification), 9 control vertices (4 feet, head tip, tail tip, three
+    along the back) moved to their positions in each pose (as the paper's walking camel);
   * cat 14k: the quality protocol of bench_quality.py, every anchor-region vertex a control at
     its pose position;
   * cat 58k: the cat and its poses midpoint-subdivided once, the same protocol.
 
-For each mesh and pose: deform(tol=1e-5) from the default start is timed (median of --repeats
-runs), and its result compared with a tight reference (tol 1e-12) to show how far the stopping
-rule leaves it from the fixed point. Sweeps per second come from fixed 50-sweep runs.
+Every pose is solved with the library's defaults (Newton's method from the start built from the
+controls, tol 1e-6), the median of --repeats runs per pose. The table shows per mesh the slowest
+pose and its time against the target, whether every pose converged, the residual (the largest
+last Newton step over the poses, as a fraction of the diagonal: the stopping rule's quantity),
+and for the slowest pose the largest difference (fraction of the diagonal) to the same solve on
+a randomly relabelled mesh and with one thread. For cat 14k a second table gives the quality
+protocol's error per pose against Blender's Laplacian Deform (docs/quality.md).
 
-    python bench/bench_pyramid.py [--repeats 3] [--threads 1 2] [--poses 1 2 ...] [--plot PNG]
-                                  [--stretch on|off] [--addon]
+Timings are wall-clock medians on whatever machine runs this; the lead's figures come from an
+idle machine. numpy's own BLAS threads are limited to one (they spin after each call and take a
+core from the solver; the solver's own BLAS is serial).
 """
 
 from __future__ import annotations
 
-import argparse
 import os
-import platform
-import statistics
-import time
-from pathlib import Path
 
-import numpy as np
-from bench_quality import Bench, anchor_points
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: see the docstring
 
-import matdeform as md
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
+from bench_quality import Bench, anchor_points, rms_error  # noqa: E402
+
+import matdeform as md  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "cat-poses"
 TARGET_MS = {"cat 5k": 50.0, "cat 14k": 200.0, "cat 58k": 1000.0}
-TOL = 1e-5
+# Blender's Laplacian Deform on the quality protocol (docs/quality.md), per pose, and the
+# uniform material-aware solve's mean: the quality targets.
+LAPLACIAN = [0.0546, 0.0398, 0.0346, 0.1101, 0.0833, 0.0494, 0.0943, 0.0614, 0.0783]
+UNIFORM_MEAN = 0.0569
 
 
 def subdivide(v: np.ndarray, f: np.ndarray, poses: list[np.ndarray]):
@@ -67,29 +82,6 @@ def nine_controls(v: np.ndarray) -> np.ndarray:
     return np.array(pts)
 
 
-def meshes(b: Bench):
-    """(name, vertices, faces, controls, [target per pose]) for the three sizes. The 5k mesh
-    needs fast-simplification (pip install fast-simplification; benchmark only)."""
-    out = []
-    try:
-        import fast_simplification
-    except ImportError:
-        print("cat 5k skipped: pip install fast-simplification to decimate the cat")
-        fast_simplification = None
-    if fast_simplification is not None:
-        out.append(decimated(b, fast_simplification))
-    out.append(("cat 14k", b.rest, b.faces, b.pinned, [p[b.pinned] for p in b.poses]))
-    vs, fs, ps = subdivide(b.rest, b.faces, b.poses)
-    diag = np.linalg.norm(vs.max(0) - vs.min(0))
-    centres = [b.rest[i] for i in b.points.values()]
-    inside = np.zeros(len(vs), bool)
-    for c in centres:
-        inside |= np.linalg.norm(vs - c, axis=1) <= 0.025 * diag
-    pinned = np.flatnonzero(inside)
-    out.append(("cat 58k", vs, fs, pinned, [p[pinned] for p in ps]))
-    return out
-
-
 def decimated(b: Bench, fast_simplification):
     """The cat decimated to ~5k faces (QEM) with 9 controls following their nearest cat vertex."""
     vd, fd = fast_simplification.simplify(
@@ -103,182 +95,219 @@ def decimated(b: Bench, fast_simplification):
     # each control follows the nearest vertex of the full cat, keeping its small offset
     near = np.array([np.linalg.norm(b.rest - vd[c], axis=1).argmin() for c in ctrl])
     targets = [p[near] + (vd[ctrl] - b.rest[near]) for p in b.poses]
-    return "cat 5k", vd, fd, ctrl, targets
+    return "cat 5k", vd, fd, ctrl, targets, None
 
 
-def rms(x, y, diag):
-    return float(np.sqrt(np.mean(np.sum((x - y) ** 2, axis=1))) / diag)
+def meshes(b: Bench, sizes):
+    """(name, vertices, faces, controls, [target per pose], [true pose] or None)."""
+    out = []
+    if "cat 5k" in sizes:
+        try:
+            import fast_simplification
+        except ImportError:
+            print("cat 5k skipped: pip install fast-simplification to decimate the cat")
+        else:
+            out.append(decimated(b, fast_simplification))
+    if "cat 14k" in sizes:
+        out.append(("cat 14k", b.rest, b.faces, b.pinned, [p[b.pinned] for p in b.poses], b.poses))
+    if "cat 58k" in sizes:
+        vs, fs, ps = subdivide(b.rest, b.faces, b.poses)
+        diag = np.linalg.norm(vs.max(0) - vs.min(0))
+        inside = np.zeros(len(vs), bool)
+        for c in [b.rest[i] for i in b.points.values()]:
+            inside |= np.linalg.norm(vs - c, axis=1) <= 0.025 * diag
+        pinned = np.flatnonzero(inside)
+        out.append(("cat 58k", vs, fs, pinned, [p[pinned] for p in ps], None))
+    return out
 
 
-def run(name, v, f, ctrl, targets, poses_idx, repeats, poses_full=None, stretch=True):
+def relabelled(v, f, ctrl, seed=5):
+    """A random vertex numbering, face order and corner rotation: (v2, f2, ctrl2, perm) with
+    v2 = v[perm]."""
+    rng = np.random.default_rng(seed)
+    perm = rng.permutation(len(v))
+    inv = np.argsort(perm)
+    f2 = np.roll(inv[f][rng.permutation(len(f))], 1, axis=1)
+    return v[perm], f2, inv[ctrl], perm
+
+
+def run(name, v, f, ctrl, targets, poses_idx, repeats, invariance):
     t0 = time.perf_counter()
     d = md.PyramidDeformer(v, f, ctrl)
-    pre = time.perf_counter() - t0
-    times, sweeps, gaps = [], [], []
+    build = time.perf_counter() - t0
+    per = []
     for h in poses_idx:
-        tgt = targets[h]
-        ref = d.deform(tgt, tol=1e-12, stretch=stretch)
         ts = []
         for _ in range(repeats):
             t0 = time.perf_counter()
-            X = d.deform(tgt, tol=TOL, stretch=stretch)
+            X = d.deform(targets[h])
             ts.append(time.perf_counter() - t0)
-        times.append(statistics.median(ts))
-        sweeps.append(d.last_iterations)
-        gaps.append(float(np.abs(X - ref).max() / d.diagonal))
-    # sweeps per second: fixed 50-sweep runs, default settings and plain sweeps
-    tgt = targets[poses_idx[0]]
-    per = {}
-    for label, kw in (("anderson 20", {}), ("plain", {"anderson": 0})):
-        ts = []
-        for _ in range(max(3, repeats)):
-            t0 = time.perf_counter()
-            d.deform(tgt, iterations=50, tol=0, stretch=stretch, **kw)
-            ts.append(time.perf_counter() - t0)
-        per[label] = 50 / statistics.median(ts)
-    # one live update of the add-on: its default budget (30 sweeps), warm-started from the last
-    x = d.deform(tgt, iterations=30, stretch=stretch)
-    ts = []
-    for _ in range(max(3, repeats)):
-        t0 = time.perf_counter()
-        x = d.deform(tgt, iterations=30, initial=x, stretch=stretch)
-        ts.append(time.perf_counter() - t0)
-    per["live update (30 sweeps) ms"] = statistics.median(ts) * 1e3
-    return {
+        per.append(
+            {
+                "pose": h + 1,
+                "ms": statistics.median(ts) * 1e3,
+                "converged": d.last_converged,
+                "step": d.last_step,
+                "iterations": d.last_iterations,
+                "factorizations": d.last_factorizations,
+                "X": X,
+            }
+        )
+    slow = max(per, key=lambda r: r["ms"])
+    out = {
         "name": name,
         "faces": len(f),
-        "vertices": len(v),
+        "free": d.num_free,
         "controls": len(ctrl),
-        "precompute_s": pre,
-        "median_ms": statistics.median(times) * 1e3,
-        "max_ms": max(times) * 1e3,
-        "sweeps": int(statistics.median(sweeps)),
-        "gap": statistics.median(gaps),
-        "sps": per,
+        "build": build,
+        "per": per,
+        "slow": slow,
     }
+    if invariance:
+        h = slow["pose"] - 1
+        v2, f2, c2, perm = relabelled(v, f, ctrl)
+        X2 = md.PyramidDeformer(v2, f2, c2).deform(targets[h])
+        out["relabel"] = float(np.abs(X2 - slow["X"][perm]).max() / d.diagonal)
+        before = md.num_threads()
+        md.set_num_threads(1)
+        try:
+            X1 = d.deform(targets[h])
+        finally:
+            md.set_num_threads(before)
+        out["threads"] = float(np.abs(X1 - slow["X"]).max() / d.diagonal)
+    return out
 
 
-def plot_moves(b: Bench, path: Path) -> None:
-    """Move per sweep on the cat (pose 1): the paper's sweeps, with stretch off, accelerated."""
+def plot(b: Bench, path: Path, old: Path) -> None:
+    """The cat (14k, quality-protocol controls), Newton's method against the old Gauss-Seidel +
+    Anderson sweeps, whose curves are read from `old` (bench/pyramid_old_sweeps.npz, measured
+    once with the last build that had them, commit 56382a7, two threads). Left, pose 1 (where
+    the sweeps converge): distance to each method's own converged result against time. Right,
+    pose 7 (where they stall): the stopping rule's quantity against time."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    z = np.load(old)
     d = md.PyramidDeformer(b.rest, b.faces, b.pinned)
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    # pose 1: distance after a budget of iterations, against the time that budget takes
     tgt = b.poses[0][b.pinned]
-    # each setting against the fixed point of its own equations (stretch changes them)
-    refs = {s: d.deform(tgt, tol=1e-13, stretch=s) for s in (True, False)}
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4))
-    for label, kw in (
-        ("Gauss-Seidel (paper), stretch", {"anderson": 0}),
-        ("Gauss-Seidel (paper), no stretch", {"anderson": 0, "stretch": False}),
-        ("Jacobi + Anderson 20, stretch", {"method": "jacobi"}),
-        ("Gauss-Seidel + Anderson 20, stretch (default)", {}),
-    ):
-        d.deform(tgt, iterations=1500, tol=1e-13, record_moves=True, **kw)
-        ax[0].semilogy(d.last_moves, label=label, lw=1)
-        its = [25, 50, 100, 200, 400, 800, 1500]
-        ref = refs[kw.get("stretch", True)]
-        errs = [
-            np.abs(d.deform(tgt, iterations=i, tol=0, **kw) - ref).max() / d.diagonal for i in its
-        ]
-        ax[1].loglog(its, errs, "o-", label=label, ms=3)
-    ax[0].axhline(TOL, color="0.5", ls=":", lw=1)
-    ax[0].set_xlabel("sweep")
-    ax[0].set_ylabel("largest move / diagonal")
-    ax[0].set_title("move per sweep (the stopping rule's quantity)")
-    ax[1].set_xlabel("sweeps")
-    ax[1].set_ylabel("max |x - x*| / diagonal")
-    ax[1].set_title("distance to the fixed point x* (default settings, tol 1e-13)")
-    ax[1].legend(fontsize=7)
-    fig.suptitle("Pyramid coordinates on the cat (14k faces, pose 1, quality-protocol controls)")
+    ref = d.deform(tgt, tol=1e-11)
+    times, dist = [], []
+    for it in range(1, 40):
+        ts = []
+        for _ in range(3):
+            t0 = time.perf_counter()
+            X = d.deform(tgt, iterations=it, tol=1e-11)
+            ts.append(time.perf_counter() - t0)
+        times.append(statistics.median(ts))
+        dist.append(max(np.abs(X - ref).max() / d.diagonal, 1e-16))
+        if d.last_converged:
+            break
+    ax[0].loglog(z["seconds"], z["distance"], "o-", ms=3, label="old: Gauss-Seidel + Anderson")
+    ax[0].loglog(times, dist, "s-", ms=3, label="Newton (one point per iteration)")
+    ax[0].set_xlabel("seconds")
+    ax[0].set_ylabel("max |x - x*| / diagonal")
+    ax[0].set_title("pose 1: distance to each method's own result")
+    ax[0].legend(fontsize=8)
+    # pose 7: the stopping rule's quantity per iteration, against time
+    tgt = b.poses[6][b.pinned]
+    stamps = []
+    t0 = time.perf_counter()
+    d.deform(
+        tgt, progress=lambda i, s: stamps.append((time.perf_counter() - t0, s)), progress_seconds=0
+    )
+    ax[1].loglog(z["seconds7"], z["moves7"], lw=1, label="old sweeps: move per sweep")
+    ax[1].loglog(
+        [t for t, _ in stamps],
+        [max(s, 1e-16) for _, s in stamps],
+        "s-",
+        ms=3,
+        label="Newton: step per iteration",
+    )
+    ax[1].axhline(1e-6, color="0.5", ls=":", lw=1)
+    ax[1].set_xlabel("seconds")
+    ax[1].set_ylabel("largest vertex move / diagonal")
+    ax[1].set_title("pose 7: the stopping rule's quantity (dotted: tol 1e-6)")
+    ax[1].legend(fontsize=8)
+    fig.suptitle(
+        f"Pyramid coordinates on the cat (14k faces, 1502 controls), {md.num_threads()} threads"
+    )
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     print(f"wrote {path}")
-
-
-def addon_table(sets, idx, repeats) -> None:
-    """What the add-on's settings give: sweeps to tol 1e-5 (at most its 20000-sweep allowance)
-    with stretch off and on, the converge time, and one live update (30 sweeps, warm start)."""
-    print(
-        "| mesh | stretch | sweeps to tol 1e-5 per pose | converge median (ms) "
-        "| live update, 30 sweeps (ms) |"
-    )
-    print("|---|---|---|---:|---:|")
-    for name, v, f, ctrl, targets in sets:
-        d = md.PyramidDeformer(v, f, ctrl)
-        for st in (False, True):
-            sweeps, ts, live = [], [], []
-            for h in idx:
-                for _ in range(repeats):
-                    t0 = time.perf_counter()
-                    x = d.deform(targets[h], tol=TOL, stretch=st, iterations=20000)
-                    ts.append(time.perf_counter() - t0)
-                n = d.last_iterations
-                sweeps.append(str(n) if d.last_move < TOL else f">{n}")
-                for _ in range(repeats):
-                    t0 = time.perf_counter()
-                    x = d.deform(targets[h], iterations=30, initial=x, stretch=st)
-                    live.append(time.perf_counter() - t0)
-            print(
-                f"| {name} | {'on' if st else 'off'} | {' / '.join(sweeps)} | "
-                f"{statistics.median(ts) * 1e3:.0f} | {statistics.median(live) * 1e3:.1f} |",
-                flush=True,
-            )
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=DATA)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--threads", type=int, nargs="*", default=[1, 2])
+    ap.add_argument("--threads", type=int, nargs="*", default=[2])
     ap.add_argument("--poses", type=int, nargs="*", default=list(range(1, 10)))
     ap.add_argument("--sizes", nargs="*", default=list(TARGET_MS))
+    ap.add_argument("--no-invariance", action="store_true", help="skip the relabelling runs")
     ap.add_argument("--plot", type=Path, help="write the convergence plot (matplotlib)")
     ap.add_argument(
-        "--stretch",
-        choices=("on", "off"),
-        default="on",
-        help="on: the default of the library and the add-on; off: unscaled weights",
-    )
-    ap.add_argument(
-        "--addon", action="store_true", help="the add-on's table: stretch off/on, live update"
+        "--old",
+        type=Path,
+        default=Path(__file__).with_name("pyramid_old_sweeps.npz"),
+        help="the old sweeps' measured curve for the plot",
     )
     args = ap.parse_args()
-    stretch = args.stretch == "on"
     b = Bench(args.data)
     if args.plot:
-        plot_moves(b, args.plot)
+        md.set_num_threads(args.threads[0])
+        plot(b, args.plot, args.old)
         return
     idx = [p - 1 for p in args.poses]
-    sets = [m for m in meshes(b) if m[0] in args.sizes]
+    sets = meshes(b, args.sizes)
     for th in args.threads:
         md.set_num_threads(th)
         print(
             f"\n*{platform.machine()}, {os.cpu_count()} cores, {md.num_threads()} solver "
-            f"thread(s), load average {os.getloadavg()[0]:.2f}, poses {args.poses}, "
-            f"median of {args.repeats} runs per pose, stretch {args.stretch}*"
+            f"thread(s), load average {os.getloadavg()[0]:.2f}, poses {args.poses}, median of "
+            f"{args.repeats} runs per pose*\n"
         )
-        if args.addon:
-            addon_table(sets, idx, args.repeats)
-            continue
         print(
-            "| mesh | faces | controls | precompute (s) | sweeps to tol 1e-5 | converge median "
-            "(ms) | slowest pose (ms) | gap to fixed point | sweeps/s (Anderson 20) "
-            "| sweeps/s (plain) | live update, 30 sweeps (ms) | target |"
+            "| mesh | faces | free vertices | controls | slowest pose | time (ms) | target "
+            "| converged | residual (last step / diag) | Newton iterations | factorisations "
+            "| relabelled / 1 thread (of diag) | build (s) |"
         )
-        print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|")
-        for name, v, f, ctrl, targets in sets:
-            r = run(name, v, f, ctrl, targets, idx, args.repeats, stretch=stretch)
-            tgt = TARGET_MS[name]
-            ok = "met" if r["median_ms"] <= tgt else "MISSED"
+        print("|---|---:|---:|---:|---:|---:|---|---|---:|---|---:|---|---:|")
+        quality = None
+        for name, v, f, ctrl, targets, truth in sets:
+            r = run(name, v, f, ctrl, targets, idx, args.repeats, not args.no_invariance)
+            s, per = r["slow"], r["per"]
+            conv = sum(p["converged"] for p in per)
+            ok = "met" if s["ms"] <= TARGET_MS[name] else "MISSED"
+            its = [p["iterations"] for p in per]
+            inv = "-" if args.no_invariance else f"{r['relabel']:.1e} / {r['threads']:.1e}"
             print(
-                f"| {name} | {r['faces']} | {r['controls']} | {r['precompute_s']:.3f} | "
-                f"{r['sweeps']} | {r['median_ms']:.0f} | {r['max_ms']:.0f} | {r['gap']:.1e} | "
-                f"{r['sps']['anderson 20']:.0f} | {r['sps']['plain']:.0f} | "
-                f"{r['sps']['live update (30 sweeps) ms']:.0f} | <= {tgt:g} ms: {ok} |",
+                f"| {name} | {r['faces']} | {r['free']} | {r['controls']} | {s['pose']} | "
+                f"{s['ms']:.0f} | <= {TARGET_MS[name]:g} ms: {ok} | "
+                f"{'yes' if conv == len(per) else 'NO'} ({conv}/{len(per)}) | "
+                f"{max(p['step'] for p in per):.1e} | {min(its)}-{max(its)} | "
+                f"{max(p['factorizations'] for p in per)} | {inv} | {r['build']:.2f} |",
                 flush=True,
+            )
+            if truth is not None:
+                quality = [
+                    (p["pose"], rms_error(p["X"], truth[p["pose"] - 1], b.diag)) for p in per
+                ]
+
+        if quality:
+            print("\ncat 14k, quality protocol (error to the real pose / diagonal, RMS):\n")
+            print("| pose | pyramid | Laplacian Deform | below it |")
+            print("|---:|---:|---:|---|")
+            for pose, e in quality:
+                lap = LAPLACIAN[pose - 1]
+                print(f"| {pose} | {e:.4f} | {lap:.4f} | {'yes' if e < lap else 'NO'} |")
+            mean = float(np.mean([e for _, e in quality]))
+            print(
+                f"| mean | {mean:.4f} | {np.mean(LAPLACIAN):.4f} | target <= {UNIFORM_MEAN}: "
+                f"{'met' if mean <= UNIFORM_MEAN else 'MISSED'} |"
             )
 
 

@@ -484,7 +484,6 @@ def build_pyramid():
                 add_anchor(obj, lambda p: p.center.z < 1e-4),
                 add_anchor(obj, lambda p: p.center.z > 4.999),
             ]
-            obj.material_deform.pyramid.stretch = True  # keeps the bar's girth (docs/pyramid.md)
             posed.append((obj, ancs[1], ((1.2, 0.0, -0.6), math.pi / 3)))
     for obj, tip, how in posed:
         activate(obj)
@@ -498,7 +497,8 @@ def build_pyramid():
         n_ctrl = len(session.entry_for(obj, scene).solver.rest)
         print(
             f"{obj.name}: {n_ctrl} of {len(obj.data.vertices)} vertices controlled, "
-            f"{st.get('iterations')} sweeps, last move {st.get('move'):.1e} of the diagonal"
+            f"{st.get('iterations')} Newton iterations, last step {st.get('move'):.1e} of the "
+            f"diagonal, {'converged' if st.get('converged') else 'NOT converged'}"
         )
     for x, text in ((-5.0, "tentacle: 2 anchors"), (3.0, "bar: 2 anchors")):
         label(text, (x, -1.0, 5.7))

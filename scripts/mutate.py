@@ -167,17 +167,17 @@ MUTATIONS = [
     ),
     M(
         "P1",
-        "native/src/pyramid_deformer.cpp",
-        "(*pushes)[j] = s / (qe - qb);",
-        "(*pushes)[j] = s;",
-        "pyramid step 2: a vertex next to several controls takes the sum of their shifts",
+        "native/src/pyramid_energy.cpp",
+        "coef[0] = 2.0 / (s0 * (1 + kappa));",
+        "coef[0] = 2.0 / s0;",
+        "pyramid Hessian: the scale term forgets the size weight kappa",
     ),
     M(
         "P2",
-        "native/src/pyramid_deformer.cpp",
-        "return c + vp + (h / m) * n;",
-        "return c + vp - (h / m) * n;",
-        "pyramid Eq. 2 puts the vertex below its neighbours' plane",
+        "native/src/pyramid_energy.cpp",
+        "coef[i + 1] = std::abs(g) > floor ? 2.0 * fit.scale / g : 0.0;",
+        "coef[i + 1] = std::abs(g) > floor ? 2.0 / g : 0.0;",
+        "pyramid Hessian: the rotation terms forget the pyramid's scale",
     ),
     M(
         "P3",
@@ -188,10 +188,10 @@ MUTATIONS = [
     ),
     M(
         "P5",
-        "native/src/pyramid_deformer.cpp",
-        "const Vec4d ox = cx + vx + h * nx, oy = cy + vy + h * ny, oz = cz + vz + h * nz;",
-        "const Vec4d ox = cx + vx - h * nx, oy = cy + vy - h * ny, oz = cz + vz - h * nz;",
-        "the four-lane placement puts the vertex below its neighbours' plane",
+        "native/src/pyramid_energy.cpp",
+        "coef[j] = std::min(lam, 2.0);",
+        "coef[j] = lam;",
+        "the positive semidefinite pyramid Hessian is not clamped (indefinite far from rest)",
     ),
     M(
         "P6",
@@ -210,9 +210,9 @@ MUTATIONS = [
     M(
         "P7",
         "native/src/pyramid_deformer.cpp",
-        "return c + (trace / s0) * (Rp * (row(R0, v) - c0));",
-        "return c + (Rp * (row(R0, v) - c0));",
-        "followers (quaternion-fit path) ignore the scale of their neighbourhood",
+        "s += 2.0 * (x - f.centre - f.scale * (f.R * Vec3(p[0], p[1], p[2])));",
+        "s += 2.0 * (x - f.centre - f.R * Vec3(p[0], p[1], p[2]));",
+        "pyramid gradient: the fitted scale is left out (rigid targets)",
     ),
     # Session 13: the anchor vertices' transforms looked up at construction.
     M(
@@ -260,10 +260,11 @@ MUTATIONS = [
     ),
     M(
         "P8",
-        "native/src/pyramid_deformer.cpp",
-        "if (!accelerated) x_now = g_prev;",
+        "native/src/pyramid_start.cpp",
+        "    for (int i = 0; i < u; ++i) field.row(S.field_vertex[static_cast<size_t>(i)]) = "
+        "sol.row(i);",
         "",
-        "after a plain (unaccelerated) step Anderson measures the move from the stale iterate",
+        "the start's rotation field is not interpolated (the overall fit everywhere)",
     ),
     # Session 11: the quaternion rotation fit the pyramid's followers use.
     M(
@@ -289,10 +290,24 @@ MUTATIONS = [
     ),
     M(
         "P4",
-        "native/src/pyramid_deformer.cpp",
+        "native/src/pyramid_coordinates.cpp",
         "weight[i] = w / length[i];",
         "weight[i] = w;",
         "mean-value weights without the 1/l_i factor",
+    ),
+    M(
+        "P10",
+        "native/src/pyramid_deformer.cpp",
+        "if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
+        "if (std::isfinite(Et)) {",
+        "pyramid Newton: every step is accepted, also one that raises the energy",
+    ),
+    M(
+        "P11",
+        "native/src/pyramid_deformer.cpp",
+        "      if (!S.moving[static_cast<size_t>(v)]) X.row(v) = S.placement.rest.row(v);",
+        "",
+        "a warm start moves a part no control reaches away from rest",
     ),
     M(
         "RP1",
@@ -425,7 +440,7 @@ MUTATIONS = [
     ),
     M(
         "TW2",
-        "native/src/deformer.cpp",
+        "native/src/transforms.cpp",
         "if (!(err <= kRotationVectorTolerance)) {",
         "if (!(err <= 100 * kRotationVectorTolerance)) {",
         "rotation vectors 100x farther from their anchor's rotation are accepted",
@@ -433,9 +448,23 @@ MUTATIONS = [
     M(
         "TW3",
         "native/src/deformer.cpp",
-        "rotation_vector_mismatch(va, rotation_exp((*logs)[a].rotation));",
-        "rotation_vector_mismatch(va, rotation_exp((*logs)[0].rotation));",
+        "rotation_exp((*logs)[a].rotation),",
+        "rotation_exp((*logs)[0].rotation),",
         "every rotation vector is checked against anchor 0's rotation",
+    ),
+    M(
+        "PT1",
+        "native/src/pyramid_start.cpp",
+        "const bool logs = rotation_vectors != nullptr && !S.rot.empty();",
+        "const bool logs = false;",
+        "the pyramid start ignores the given rotation vectors (quaternions: principal turns)",
+    ),
+    M(
+        "PT2",
+        "native/src/pyramid_start.cpp",
+        "const Vec3 r = rotation_log_near(R, near / static_cast<double>(cl.size()));",
+        "const Vec3 r = rotation_log(R);",
+        "a control cluster blends the principal log of its rotation, not the given branch",
     ),
     M(
         "TW4",

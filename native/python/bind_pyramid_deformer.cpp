@@ -7,12 +7,6 @@ namespace py = pybind11;
 using namespace matdeform;
 
 namespace {
-PyramidMethod parse_method(const std::string& name) {
-  if (name == "gauss-seidel") return PyramidMethod::GaussSeidel;
-  if (name == "jacobi") return PyramidMethod::Jacobi;
-  throw std::invalid_argument("method: expected 'gauss-seidel' or 'jacobi'");
-}
-
 py::dict to_dict(const PyramidCoordinates& pc) {
   py::dict d;
   d["offsets"] = py::array_t<int>(static_cast<py::ssize_t>(pc.offsets.size()), pc.offsets.data());
@@ -53,34 +47,51 @@ void bind_pyramid_deformer(py::module_& m) {
       .def(
           "deform",
           [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
-             std::optional<Vertices> initial, bool stretch, bool push, const std::string& method,
-             bool record_moves, int anderson, std::optional<py::function> progress,
-             double progress_seconds) {
+             std::optional<Vertices> initial, double scale_weight,
+             std::optional<py::function> progress, double progress_seconds,
+             std::optional<Vectors3> rotation_vectors) {
             PyramidSolveOptions o;
             o.progress_seconds = progress_seconds;
             if (progress) {
-              // Called between sweeps on this thread; the function outlives the call, so the
-              // callback holds a pointer (copies of it need no reference count, no GIL).
+              // Called between iterations on this thread; the function outlives the call, so
+              // the callback holds a pointer (copies of it need no reference count, no GIL).
               const py::function* f = &*progress;
-              o.progress = [f](int sweeps, double move) {
+              o.progress = [f](int iterations, double step) {
                 py::gil_scoped_acquire gil;
-                (*f)(sweeps, move);
+                (*f)(iterations, step);
               };
             }
             o.max_iterations = iterations;
             o.tol = tol;
-            o.stretch = stretch;
-            o.push = push;
-            o.method = parse_method(method);
+            o.scale_weight = scale_weight;
             o.initial = initial ? &*initial : nullptr;
-            o.record_moves = record_moves;
-            o.anderson = anderson;
+            o.rotation_vectors = rotation_vectors ? &*rotation_vectors : nullptr;
             py::gil_scoped_release release;
             return self.deform(control_positions, o);
           },
           py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
-          py::arg("stretch"), py::arg("push"), py::arg("method"), py::arg("record_moves"),
-          py::arg("anderson"), py::arg("progress") = py::none(), py::arg("progress_seconds") = 0.1)
+          py::arg("scale_weight"), py::arg("progress") = py::none(),
+          py::arg("progress_seconds") = 0.1, py::arg("rotation_vectors") = py::none())
+      .def(
+          "start",
+          [](const PyramidDeformer& self, const Vertices& control_positions,
+             std::optional<Vectors3> rotation_vectors) {
+            py::gil_scoped_release release;
+            return self.start(control_positions, rotation_vectors ? &*rotation_vectors : nullptr);
+          },
+          py::arg("control_positions"), py::arg("rotation_vectors") = py::none())
+      .def(
+          "energy",
+          [](const PyramidDeformer& self, const Vertices& X, double scale_weight) {
+            Vertices g;
+            double E;
+            {
+              py::gil_scoped_release release;
+              E = self.energy(X, scale_weight, &g);
+            }
+            return py::make_tuple(E, g);
+          },
+          py::arg("positions"), py::arg("scale_weight"))
       .def(
           "reconstruct",
           [](const PyramidDeformer& self, const Vertices& X, bool stretch) {
@@ -91,9 +102,12 @@ void bind_pyramid_deformer(py::module_& m) {
       .def_property_readonly(
           "coordinates", [](const PyramidDeformer& self) { return to_dict(self.coordinates()); })
       .def_property_readonly("last_iterations", &PyramidDeformer::last_iterations)
-      .def_property_readonly("last_move", &PyramidDeformer::last_move)
-      .def_property_readonly("last_moves", &PyramidDeformer::last_moves)
-      .def_property_readonly("num_colors", &PyramidDeformer::num_colors)
+      .def_property_readonly("last_step", &PyramidDeformer::last_step)
+      .def_property_readonly("last_steps", &PyramidDeformer::last_steps)
+      .def_property_readonly("last_converged", &PyramidDeformer::last_converged)
+      .def_property_readonly("last_energy", &PyramidDeformer::last_energy)
+      .def_property_readonly("last_factorizations", &PyramidDeformer::last_factorizations)
+      .def_property_readonly("num_free", &PyramidDeformer::num_free)
       .def_property_readonly("num_passive", &PyramidDeformer::num_passive)
       .def_property_readonly("diagonal", &PyramidDeformer::diagonal);
 }

@@ -32,19 +32,10 @@ void use_rotation_vectors(const Vectors3& v, std::vector<TransformLog>* logs) {
                                 ",3), one per anchor, got " + std::to_string(v.rows()) + " rows");
   }
   for (size_t a = 0; a < k; ++a) {
-    const Eigen::Vector3d va = v.row(static_cast<Eigen::Index>(a)).transpose();
-    const std::string name = "rotation_vectors[" + std::to_string(a) + "]";
-    if (!va.allFinite()) throw std::invalid_argument(name + ": contains NaN or infinity");
-    const double err = rotation_vector_mismatch(va, rotation_exp((*logs)[a].rotation));
-    if (!(err <= kRotationVectorTolerance)) {
-      std::ostringstream msg;
-      msg << name << ": its exp differs from the rotation of transforms[" << a << "] by " << err
-          << " rad (tolerance " << kRotationVectorTolerance
-          << "); expected a log of that rotation, i.e. its principal log plus whole turns about "
-             "the same axis";
-      if (std::isnan(err)) msg << " (this vector, " << va.norm() << " rad, is too long)";
-      throw std::invalid_argument(msg.str());
-    }
+    check_rotation_vector(v.row(static_cast<Eigen::Index>(a)).transpose(),
+                          rotation_exp((*logs)[a].rotation),
+                          "rotation_vectors[" + std::to_string(a) + "]",
+                          "the rotation of transforms[" + std::to_string(a) + "]");
   }
   for (size_t a = 0; a < k; ++a) (*logs)[a].rotation = v.row(static_cast<Eigen::Index>(a));
 }

@@ -405,6 +405,8 @@ struct SparseCholesky::Impl {
   mutable cholmod_dense* X = nullptr;
   mutable cholmod_dense* Y = nullptr;
   mutable cholmod_dense* E = nullptr;
+  cholmod_sparse* A = nullptr;  // Refactor: the pattern, values overwritten per refactor()
+  bool factored = false;        // Refactor: the last refactor() succeeded
   std::unique_ptr<Substitution> sub;
 
   explicit Impl(Reuse reuse) {
@@ -415,7 +417,7 @@ struct SparseCholesky::Impl {
     // ~5x longer to compute (about 1 s at 100k unknowns). Worth it only when the factor is
     // reused for many solves; then try both and keep the sparser one. Nested dissection also
     // gives the elimination tree the balanced subtrees the parallel substitution needs.
-    c.nmethods = reuse == Reuse::PerPose ? 2 : 1;
+    c.nmethods = reuse == Reuse::Once ? 1 : 2;
     c.method[0].ordering = CHOLMOD_AMD;
     c.method[1].ordering = CHOLMOD_METIS;
     c.postorder = 1;
@@ -429,6 +431,7 @@ struct SparseCholesky::Impl {
     if (X) cholmod_free_dense(&X, &c);
     if (Y) cholmod_free_dense(&Y, &c);
     if (E) cholmod_free_dense(&E, &c);
+    if (A) cholmod_free_sparse(&A, &c);
     if (L) cholmod_free_factor(&L, &c);
     cholmod_finish(&c);
   }
@@ -440,8 +443,11 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   if (n_ == 0) return;
   Eigen::SparseMatrix<double> A = A_in.triangularView<Eigen::Lower>();
   A.makeCompressed();
-  for (Eigen::Index i = 0; i < A.nonZeros(); ++i) {
-    if (!std::isfinite(A.valuePtr()[i])) throw std::invalid_argument(kIllConditioned);
+  nnz_ = A.nonZeros();
+  if (reuse != Reuse::Refactor) {
+    for (Eigen::Index i = 0; i < A.nonZeros(); ++i) {
+      if (!std::isfinite(A.valuePtr()[i])) throw std::invalid_argument(kIllConditioned);
+    }
   }
   cholmod_common* c = &impl_->c;
   cholmod_sparse* As =
@@ -451,6 +457,18 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   std::memcpy(As->p, A.outerIndexPtr(), sizeof(int) * static_cast<size_t>(n_ + 1));
   std::memcpy(As->i, A.innerIndexPtr(), sizeof(int) * static_cast<size_t>(A.nonZeros()));
   std::memcpy(As->x, A.valuePtr(), sizeof(double) * static_cast<size_t>(A.nonZeros()));
+  if (reuse == Reuse::Refactor) {
+    {
+      const std::lock_guard<std::mutex> lock(factor_mutex());
+      impl_->L = cholmod_analyze(As, c);
+    }
+    impl_->A = As;
+    if (!impl_->L) {
+      throw std::runtime_error("sparse Cholesky analysis failed (CHOLMOD status " +
+                               std::to_string(c->status) + ")");
+    }
+    return;
+  }
   int status;
   {
     const std::lock_guard<std::mutex> lock(factor_mutex());
@@ -485,11 +503,38 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
 
 long long SparseCholesky::factorizations() { return g_factorizations.load(); }
 
+bool SparseCholesky::refactor(const double* values) {
+  if (!impl_->A) throw std::logic_error("refactor(): not a Refactor factor");
+  if (n_ == 0) return true;
+  const std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->factored = false;
+  for (long long i = 0; i < nnz_; ++i) {
+    if (!std::isfinite(values[i])) return false;
+  }
+  std::memcpy(impl_->A->x, values, sizeof(double) * static_cast<size_t>(nnz_));
+  cholmod_common* c = &impl_->c;
+  int status;
+  {
+    const std::lock_guard<std::mutex> flock(factor_mutex());
+    cholmod_factorize(impl_->A, impl_->L, c);
+    status = c->status;
+  }
+  if (status == CHOLMOD_NOT_POSDEF) return false;
+  if (status < CHOLMOD_OK) {
+    throw std::runtime_error("sparse Cholesky factorisation failed (CHOLMOD status " +
+                             std::to_string(status) + ")");
+  }
+  impl_->factored = true;
+  g_factorizations.fetch_add(1, std::memory_order_relaxed);
+  return true;
+}
+
 SparseCholesky::~SparseCholesky() = default;
 
 void SparseCholesky::solve(const double* B, double* X, int nrhs) const {
   if (n_ == 0 || nrhs == 0) return;
   const std::lock_guard<std::mutex> lock(impl_->mutex);
+  if (impl_->A && !impl_->factored) throw std::logic_error("solve(): no successful refactor()");
   if (impl_->sub) {
     impl_->sub->solve(B, X, nrhs);
     return;

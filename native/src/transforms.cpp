@@ -149,6 +149,21 @@ double rotation_vector_mismatch(const Eigen::Vector3d& v, const Eigen::Matrix3d&
   return rotation_log(E.transpose() * R).norm();
 }
 
+void check_rotation_vector(const Eigen::Vector3d& v, const Eigen::Matrix3d& R,
+                           const std::string& name, const std::string& of) {
+  if (!v.allFinite()) throw std::invalid_argument(name + ": contains NaN or infinity");
+  const double err = rotation_vector_mismatch(v, R);
+  if (!(err <= kRotationVectorTolerance)) {
+    std::ostringstream msg;
+    msg << name << ": its exp differs from " << of << " by " << err << " rad (tolerance "
+        << kRotationVectorTolerance
+        << "); expected a log of that rotation, i.e. its principal log plus whole turns about "
+           "the same axis";
+    if (std::isnan(err)) msg << " (this vector, " << v.norm() << " rad, is too long)";
+    throw std::invalid_argument(msg.str());
+  }
+}
+
 Eigen::Vector3d rotation_log_near(const Eigen::Matrix3d& R, const Eigen::Vector3d& near) {
   constexpr double kTwoPi = 6.28318530717958647693;
   const Eigen::Vector3d r = rotation_log(R);

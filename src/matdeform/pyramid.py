@@ -1,8 +1,10 @@
 """Shape-preserving deformation with pyramid coordinates (Sheffer & Kraevoy).
 
-Each vertex is described relative to its one-ring by angles and projected lengths (invariant
-under rigid motion); a pose given by a few control vertices is found by re-placing the other
-vertices from their descriptions until they settle. See docs/pyramid.md.
+Each vertex is described relative to its one-ring (its "pyramid") by angles and projected
+lengths, which do not change under rotation and uniform scale. A pose given by a few control
+vertices is the configuration in which every pyramid is, in least squares, a rotated and scaled
+copy of its rest shape; it is found by Newton's method on all free vertices at once. See
+docs/pyramid.md.
 """
 
 from __future__ import annotations
@@ -10,17 +12,22 @@ from __future__ import annotations
 import numpy as np
 
 from . import _core
-from ._validate import as_faces, as_index_set, as_vertices
-
-_METHODS = ("gauss-seidel", "jacobi")
+from ._validate import (
+    as_count,
+    as_faces,
+    as_index_set,
+    as_real,
+    as_rotation_vectors,
+    as_vertices,
+)
 
 #: Vertex kinds in ``pyramid_coordinates(...)["kind"]``.
 KIND_INTERIOR, KIND_BOUNDARY, KIND_FOLLOWER, KIND_ISOLATED = 0, 1, 2, 3
 
-
-def _is_count(x) -> bool:
-    """An integer >= 0 (numpy integers too, bools not)."""
-    return isinstance(x, (int, np.integer)) and not isinstance(x, bool) and x >= 0
+#: How strongly each pyramid keeps its rest size by default (``scale_weight``, docs/pyramid.md).
+DEFAULT_SCALE_WEIGHT = 0.003
+#: Newton iterations of ``deform(iterations=None)``.
+DEFAULT_ITERATIONS = 100
 
 
 def pyramid_coordinates(vertices, faces) -> dict:
@@ -52,12 +59,16 @@ def pyramid_coordinates(vertices, faces) -> dict:
 class PyramidDeformer:
     """Pose a mesh by a few control vertices, preserving its local shape (pyramid coordinates).
 
-    The constructor builds the description of every vertex (angles alpha_i, beta_i and lengths
-    l_i relative to its one-ring), colours the vertex graph for parallel Gauss-Seidel and links
-    the controls to their neighbours. deform() then iterates the paper's steps 1-3 from a start
-    (the rest mesh moved by the similarity that best maps the controls' rest positions onto
-    their targets, or ``initial``) until the largest move of a sweep is below
-    ``tol`` x the rest bounding-box diagonal.
+    The constructor describes every vertex relative to its one-ring (its pyramid: the vertex
+    and its neighbours), finds the free vertices (those the controls reach through edges),
+    and prepares the Newton solver (the Hessian's sparsity pattern and its symbolic
+    factorisation) and the start (two graph-Laplacian factorisations). deform() then minimises
+
+        E(X) = sum over pyramids  min over s, R  |pyramid(X) - s R pyramid(rest)|^2
+                                                  + scale_weight s0 (s - 1)^2
+
+    (s a scale, R a rotation, both pyramids centred; s0 the pyramid's squared rest size) over
+    the free vertices, with the controls at their targets.
 
     Parameters
     ----------
@@ -66,9 +77,8 @@ class PyramidDeformer:
     control : (k,) int, k >= 1 unique vertex indices whose positions deform() prescribes.
 
     Defined behaviour: vertices in no face, and parts of the mesh that no control vertex
-    reaches through edges, keep their start positions. Non-manifold and degenerate fans
-    (fewer than three neighbours, zero area, folded projections) follow the best-fit
-    similarity of their one-ring instead of a description. The output never contains NaN.
+    reaches through edges, stay exactly at rest. Pyramids whose rest points lie on a line
+    (degenerate fans) carry no shape and are left out. The output never contains NaN.
     """
 
     def __init__(self, vertices, faces, control):
@@ -87,106 +97,113 @@ class PyramidDeformer:
         iterations: int | None = None,
         tol: float = 1e-6,
         initial=None,
-        stretch: bool = True,
         *,
-        push: bool = True,
-        method: str = "gauss-seidel",
-        anderson: int = 20,
-        record_moves: bool = False,
+        scale_weight: float = DEFAULT_SCALE_WEIGHT,
         progress=None,
         progress_seconds: float = 0.1,
+        rotation_vectors=None,
     ) -> np.ndarray:
         """Deformed positions (n,3) float64 with the control vertices at control_positions.
 
-        control_positions : (k,3) float, in the order of ``control`` (mesh unit).
-        iterations : sweep budget, int >= 0; None runs until converged (at most 100000).
-        tol : stop once the largest vertex move of a sweep < tol x the rest bounding-box
-            diagonal (0 runs the whole budget).
+        control_positions : (k,3) float, in the order of ``control`` (mesh unit), each
+            coordinate within +-1e50.
+        iterations : most Newton iterations, int in [0, 2**31 - 1]; None: 100. Each one
+            factors the Hessian once (twice where the exact Hessian is not positive definite).
+        tol : converged once a full Newton step moves no vertex by more than tol x the rest
+            bounding-box diagonal (float >= 0; 0 runs the whole budget). That last step is
+            applied, which leaves the result about tol^2 x diagonal from the minimum.
         initial : (n,3) start positions, e.g. the previous result for a live update with a
-            small budget; None starts from the rest mesh moved by the controls' best-fit
-            similarity (rotation, uniform scale, translation). Control rows are replaced.
-        stretch : scale the mean value weights by |v' - v'_i| / l_i (the paper's stretch
-            correction: keeps edge lengths better; not faster in our measurements,
-            docs/pyramid.md).
-        push : the paper's step 2, control vertices push their neighbours to the height their
-            own description predicts.
-        method : "gauss-seidel" (graph-coloured, parallel) or "jacobi".
-        anderson : Anderson acceleration window over the sweeps, int >= 0 (0: plain sweeps).
-        record_moves : keep every sweep's move in ``last_moves``.
-        progress : None, or a callable ``progress(sweeps, move)`` (int, float: that sweep's
-            largest move as a fraction of the diagonal), called after a sweep at most every
-            ``progress_seconds`` (float >= 0, 0: after every sweep) on the calling thread, for
-            a progress bar. An exception it raises ends the call and propagates. The result
-            does not depend on it.
+            small budget; None starts from the controls alone (their clusters' similarities
+            blended harmonically, docs/pyramid.md), so the result depends on the pose only.
+            Control rows are replaced, vertices no control reaches are put at rest.
+        scale_weight : how strongly each pyramid keeps its rest size, float in [0, 1e6]: 0 keeps
+            only its shape up to scale (what the description fixes), large values approach
+            rigid pyramids.
+        progress : None, or a callable ``progress(iterations, step)`` (int, float: that
+            iteration's largest vertex move as a fraction of the diagonal), called after an
+            iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) and
+            after the last one, on the calling thread. An exception it raises ends the call and
+            propagates. The result does not depend on it.
+        rotation_vectors : None, or (k,3) float, one rotation vector (axis * angle, radians,
+            any length, e.g. from ``unwrap_rotations``) per control in the order of
+            ``control``, typically its anchor's. The start then blends each control cluster's
+            rotation as the log these vectors give, so it carries turns past half a turn (a
+            540-degree twist starts twisted, not at 180). Each vector of a cluster that carries
+            a rotation (at least three controls joined by edges, not on a line) must be a log
+            of the rotation fitted to that cluster: its exp within 1e-4 rad of it, else
+            ValueError; other controls' vectors are not used. Not used with ``initial``.
 
-        After the call ``last_iterations`` is the number of sweeps and ``last_move`` the largest
-        move of the last one, as a fraction of the rest diagonal (NaN after 0 sweeps). The
-        result never contains NaN or runaway coordinates: once a sweep moves a vertex by more
-        than 100x the extent of the start and the controls (the iteration is diverging, e.g. a
-        strong pose on a mesh with sliver faces), it raises RuntimeError instead, and
-        ``last_iterations`` is 0, ``last_move`` NaN.
+        After the call ``last_iterations`` is the number of Newton iterations, ``last_step``
+        the last one's largest vertex move (fraction of the diagonal; NaN after 0 iterations),
+        ``last_converged`` whether the stopping rule was met, ``last_energy`` the energy.
+        Raises ValueError for bad input and RuntimeError if the energy stops being finite.
         """
         k = len(self._control)
         x = as_vertices(control_positions, "control_positions", rows=k)
-        if iterations is not None and not _is_count(iterations):
-            raise ValueError(f"iterations: expected an integer >= 0 or None, got {iterations!r}")
-        it = 100_000 if iterations is None else int(iterations)
-        try:
-            t = float(tol)
-        except (TypeError, ValueError):
-            raise ValueError(f"tol: expected a finite float >= 0, got {tol!r}") from None
-        if not np.isfinite(t) or t < 0:
-            raise ValueError(f"tol: expected a finite float >= 0, got {tol!r}")
+        it = DEFAULT_ITERATIONS if iterations is None else as_count(iterations, "iterations")
+        t = as_real(tol, "tol", 0.0)
         x0 = None if initial is None else as_vertices(initial, "initial", rows=self._n)
-        if method not in _METHODS:
-            raise ValueError(f"method: expected one of {_METHODS}, got {method!r}")
-        if not _is_count(anderson):
-            raise ValueError(f"anderson: expected an integer >= 0, got {anderson!r}")
+        w = as_real(scale_weight, "scale_weight", 0.0, 1e6)
         if progress is not None and not callable(progress):
             raise ValueError(f"progress: expected a callable or None, got {progress!r}")
-        try:
-            every = float(progress_seconds)
-        except (TypeError, ValueError):
-            every = float("nan")
-        if not every >= 0:  # also NaN
-            raise ValueError(f"progress_seconds: expected a float >= 0, got {progress_seconds!r}")
-        return self._core.deform(
-            x,
-            it,
-            t,
-            x0,
-            bool(stretch),
-            bool(push),
-            method,
-            bool(record_moves),
-            int(anderson),
-            progress,
-            every,
-        )
+        every = as_real(progress_seconds, "progress_seconds", 0.0)
+        rv = None if rotation_vectors is None else as_rotation_vectors(rotation_vectors, k)
+        return self._core.deform(x, it, t, x0, w, progress, every, rv)
+
+    def start(self, control_positions, rotation_vectors=None) -> np.ndarray:
+        """The start deform() uses without ``initial`` (n,3), from control_positions (k,3) and
+        optional rotation_vectors (k,3) as in deform()."""
+        k = len(self._control)
+        x = as_vertices(control_positions, "control_positions", rows=k)
+        rv = None if rotation_vectors is None else as_rotation_vectors(rotation_vectors, k)
+        return self._core.start(x, rv)
+
+    def energy(self, positions, scale_weight: float = DEFAULT_SCALE_WEIGHT):
+        """The energy deform() minimises (float, squared mesh units) and its gradient (n,3) at
+        positions (n,3), for inspection and tests."""
+        x = as_vertices(positions, "positions", rows=self._n)
+        w = as_real(scale_weight, "scale_weight", 0.0, 1e6)
+        return self._core.energy(x, w)
 
     def reconstruct(self, positions, stretch: bool = False) -> np.ndarray:
-        """Every vertex placed once from its neighbours in positions (n,3) by Eq. 1-2.
+        """Every vertex placed once from its neighbours in positions (n,3) by the paper's
+        Eq. 1-2 (stretch: its weight scaling by |v' - v'_i| / l_i).
 
-        No iteration and no step 2; controls are placed too. ``reconstruct(rest)`` gives back
-        the rest mesh (followers and isolated vertices exactly, the others to round-off).
+        Controls are placed too. ``reconstruct(rest)`` gives back the rest mesh (followers and
+        isolated vertices exactly, the others to round-off).
         """
         x = as_vertices(positions, "positions", rows=self._n)
         return self._core.reconstruct(x, bool(stretch))
 
     @property
     def last_iterations(self) -> int:
-        """Sweeps done by the last deform()."""
+        """Newton iterations of the last deform()."""
         return self._core.last_iterations
 
     @property
-    def last_move(self) -> float:
-        """Largest vertex move of the last sweep, as a fraction of the rest diagonal."""
-        return self._core.last_move
+    def last_step(self) -> float:
+        """Largest vertex move of the last iteration, as a fraction of the rest diagonal."""
+        return self._core.last_step
 
     @property
-    def last_moves(self) -> np.ndarray:
-        """Every sweep's largest move (fraction of the diagonal), with record_moves=True."""
-        return np.asarray(self._core.last_moves)
+    def last_steps(self) -> np.ndarray:
+        """Every iteration's largest vertex move (fraction of the diagonal), (iterations,)."""
+        return np.asarray(self._core.last_steps)
+
+    @property
+    def last_converged(self) -> bool:
+        """Whether the last deform() met the stopping rule."""
+        return self._core.last_converged
+
+    @property
+    def last_energy(self) -> float:
+        """The energy of the last deform()'s result (squared mesh units)."""
+        return self._core.last_energy
+
+    @property
+    def last_factorizations(self) -> int:
+        """Numeric factorisations of the Hessian in the last deform()."""
+        return self._core.last_factorizations
 
     @property
     def coordinates(self) -> dict:
@@ -204,9 +221,9 @@ class PyramidDeformer:
         return self._core.diagonal
 
     @property
-    def num_colors(self) -> int:
-        """Colours of the Gauss-Seidel colouring (parallel steps per sweep)."""
-        return self._core.num_colors
+    def num_free(self) -> int:
+        """Vertices the solve moves (reached from a control, not controls)."""
+        return self._core.num_free
 
     @property
     def num_passive(self) -> int:

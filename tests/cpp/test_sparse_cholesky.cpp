@@ -121,4 +121,36 @@ TEST(SparseCholesky, NotPositiveDefiniteThrowsInvalidArgument) {
   EXPECT_THROW(SparseCholesky(A, SparseCholesky::Reuse::PerPose), std::invalid_argument);
 }
 
+TEST(SparseCholesky, RefactorFactorsNewValuesOnTheAnalysedPattern) {
+  // A 1D Laplacian with a shift: refactor with other values, and refuse an indefinite one.
+  const int n = 50;
+  auto matrix = [&](double shift) {
+    std::vector<Eigen::Triplet<double>> t;
+    for (int i = 0; i < n; ++i) {
+      t.emplace_back(i, i, 2.0 + shift);
+      if (i + 1 < n) t.emplace_back(i + 1, i, -1.0);
+    }
+    Eigen::SparseMatrix<double> A(n, n);
+    A.setFromTriplets(t.begin(), t.end());
+    A.makeCompressed();
+    return A;
+  };
+  SparseCholesky chol(matrix(0.0), SparseCholesky::Reuse::Refactor);
+  EXPECT_EQ(chol.nonzeros(), 2 * n - 1);
+  Eigen::VectorXd b = Eigen::VectorXd::LinSpaced(n, -1, 2), x(n);
+  EXPECT_THROW(chol.solve(b.data(), x.data(), 1), std::logic_error);  // nothing factored yet
+  for (double shift : {0.5, 0.01, 3.0}) {
+    const Eigen::SparseMatrix<double> A = matrix(shift);
+    ASSERT_TRUE(chol.refactor(A.valuePtr()));
+    chol.solve(b.data(), x.data(), 1);
+    const Eigen::SparseMatrix<double> full = A.selfadjointView<Eigen::Lower>();
+    EXPECT_LT((full * x - b).cwiseAbs().maxCoeff(), 1e-12) << shift;
+  }
+  EXPECT_FALSE(chol.refactor(matrix(-3.0).valuePtr()));
+  EXPECT_THROW(chol.solve(b.data(), x.data(), 1), std::logic_error);
+  Eigen::SparseMatrix<double> bad = matrix(1.0);
+  bad.valuePtr()[3] = std::nan("");
+  EXPECT_FALSE(chol.refactor(bad.valuePtr()));
+}
+
 }  // namespace

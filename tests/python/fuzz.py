@@ -57,6 +57,7 @@ FUNCTIONS = [
     "set_num_threads",
     "unwrap_rotations",
     "PoseSpaceDeformer",
+    "PyramidDeformer",
 ]
 # Checked for relabelling on soups too: they only count and sort.
 TOPOLOGY = {"dual_edges", "face_components", "faces_inside", "boundary_and_nonmanifold_edges"}
@@ -70,6 +71,7 @@ WEIGHTS = np.array([6, 6, 2] + [1] * (len(FUNCTIONS) - 3), dtype=float)
 # 0-5; an edge turned by one end's rotation instead of both (a real slip) differs by 1e-4 to 1.
 EDGE_RELABEL_TOL = 1e-8
 WEIGHTS[FUNCTIONS.index("PoseSpaceDeformer")] = 6
+WEIGHTS[FUNCTIONS.index("PyramidDeformer")] = 4
 
 
 class Failure(Exception):
@@ -671,6 +673,63 @@ def case_threads(rng, v, f, hostile, perm, kind):
         md.set_num_threads(before)
 
 
+def case_pyramid(rng, v, f, hostile, perm, kind):
+    """Controls: a few random vertices, or a random ball of them; targets: their rest places
+    moved by a random similarity and noise. Every numeric argument of deform() is drawn, and a
+    hostile case breaks one of them (or the positions' scale)."""
+    n = len(v)
+    diag = float(np.linalg.norm(np.ptp(v, axis=0))) if n else 1.0
+    if rng.random() < 0.5:
+        ctrl = rng.permutation(n)[: int(rng.integers(1, min(n, 6) + 1))]
+    else:
+        centre = v[rng.integers(0, n)] if n else np.zeros(3)
+        near = np.argsort(np.linalg.norm(v - centre, axis=1))
+        ctrl = np.sort(near[: int(rng.integers(1, max(2, n // 3) + 1))])
+    R = random_rotation(rng) * 10.0 ** rng.uniform(-0.3, 0.3)
+    target = v[ctrl] @ R.T + rng.normal(scale=diag, size=3)
+    target = target + rng.normal(scale=rng.choice([0.0, 0.05, 0.3]) * diag, size=target.shape)
+    kw = {
+        "iterations": [None, 0, 1, 5, int(rng.integers(0, 200))][int(rng.integers(0, 5))],
+        "tol": float(10.0 ** rng.uniform(-10, -2)),
+        "scale_weight": float(rng.choice([0.0, 0.003, 10.0 ** rng.uniform(-4, 2)])),
+    }
+    if rng.random() < 0.3:
+        kw["initial"] = v * 10.0 ** rng.uniform(-1, 1) + rng.normal(scale=0.1 * diag, size=v.shape)
+    if hostile:
+        what = rng.choice(["iterations", "tol", "scale_weight", "initial", "target", "control"])
+        if what == "iterations":
+            kw["iterations"] = rng.choice([-1, 2**31, 2**40, 1.5, "x"]).item()
+        elif what == "tol":
+            kw["tol"] = rng.choice([-1e-6, np.nan, np.inf, "x"]).item()
+        elif what == "scale_weight":
+            kw["scale_weight"] = rng.choice([-1.0, np.nan, 1e300, "x"]).item()
+        elif what == "initial":
+            kw["initial"] = rng.choice([1e200, np.nan, -1]).item() * (v if n else np.zeros((0, 3)))
+        elif what == "target":
+            target = target * rng.choice([1e200, np.inf, np.nan]).item()
+        else:
+            ctrl = np.concatenate([ctrl, ctrl[:1]])
+            target = np.vstack([target, target[:1]])
+    d = md.PyramidDeformer(v, f, ctrl)
+    X = d.deform(target, **kw)
+    finite("PyramidDeformer.deform", X, d.last_energy)
+    if X.shape != (n, 3):
+        raise Failure("error", f"deform: shape {X.shape}")
+    # Relabelling: when converged from the start deform() builds, and when the controls pin the
+    # pose (one or two controls, or controls on a line, leave the turn about them free: a family
+    # of minima, docs/pyramid.md). Converged means within ~tol^2 of the minimum.
+    p = v[ctrl] - v[ctrl].mean(0)
+    pinned = len(ctrl) >= 3 and np.linalg.svd(p, compute_uv=False)[1] > 1e-6 * diag
+    if not perm or not pinned or not d.last_converged or "initial" in kw:
+        return
+    r = relabel_for(rng, v, f)
+    d2 = md.PyramidDeformer(r.vertices, r.faces, r.vertex_ids(ctrl))
+    X2 = d2.deform(target, **kw)
+    if d2.last_converged:
+        tol = max(1e-9, 10 * kw["tol"] ** 2) * max(diag, 1e-300)
+        close("PyramidDeformer.deform", r.to_original(X2), X, tol)
+
+
 def case_unwrap(rng, v, f, hostile, perm, kind):
     """An animation of k anchors (turns of up to ~115 degrees per frame about wobbling axes,
     scaled, sometimes float32) unwrapped, then its last frame deformed with those vectors on a
@@ -875,6 +934,7 @@ CASES = {
     "set_num_threads": case_threads,
     "unwrap_rotations": case_unwrap,
     "PoseSpaceDeformer": case_pose_space,
+    "PyramidDeformer": case_pyramid,
 }
 assert set(CASES) == set(FUNCTIONS)
 

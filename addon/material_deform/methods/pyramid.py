@@ -3,10 +3,11 @@
 
 The anchors' faces give the control vertices; each is placed by its Empty's full transform
 (rest position moved by the anchor's motion since bind), and the rest of the mesh is found by
-iterating the local reconstructions. Iterative: a live update spends the per-update budget,
-warm-started from the previous result; Settle and Bake run to convergence. No stiffness: the
-painted stiffness is ignored (and not part of what this bind depends on beyond the session's
-common fingerprint). See docs/pyramid.md.
+Newton's method on the pyramids' least-squares energy. Iterative: a live update spends the
+per-update budget of Newton iterations, warm-started from the previous result; Settle and Bake
+run to convergence from the solver's own start. No stiffness: the painted stiffness is ignored
+(and not part of what this bind depends on beyond the session's common fingerprint). See
+docs/pyramid.md.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, FloatProperty, IntProperty
+from bpy.props import FloatProperty, IntProperty
 
 from .. import anchor_math as am
 from .. import updates
@@ -33,21 +34,19 @@ class PyramidSettings(bpy.types.PropertyGroup):
     live_iterations: IntProperty(
         name="Iterations per Update",
         description=(
-            "Sweeps spent on each live update; the mesh keeps settling after you stop dragging "
-            "(more: closer to the result while dragging, slower updates)"
+            "Newton iterations spent on each live update; the mesh keeps settling after you "
+            "stop dragging (more: closer to the result while dragging, slower updates)"
         ),
-        # the acceleration restarts with every update: below ~10 sweeps it has too little
-        # history and the plain sweeps can drift off on long thin parts (docs/pyramid.md)
-        default=30,
-        min=10,
-        soft_max=500,
+        default=1,
+        min=1,
+        soft_max=20,
         update=_live_changed,
     )
     tolerance: FloatProperty(
         name="Tolerance",
         description=(
-            "Converged when no vertex moves more than this fraction of the mesh's "
-            "bounding-box diagonal in one sweep"
+            "Converged when a Newton step moves no vertex more than this fraction of the mesh's "
+            "bounding-box diagonal"
         ),
         default=1e-6,
         min=1e-12,
@@ -56,25 +55,27 @@ class PyramidSettings(bpy.types.PropertyGroup):
         step=0.0001,
         update=_live_changed,
     )
-    stretch: BoolProperty(
-        name="Stretch Correction",
+    scale_weight: FloatProperty(
+        name="Keep Size",
         description=(
-            "Scale the reconstruction weights by how much each edge is stretched (the paper's "
-            "correction): keeps edge lengths; try it off if a pose does not settle"
+            "How strongly each vertex's neighbourhood keeps its size: 0 keeps only its shape "
+            "(parts may grow or shrink), larger values keep lengths more"
         ),
-        # on: it converged on all cat poses measured, off missed two (docs/pyramid.md); off
-        # converged where it did not on a bar turned 0.8 rad
-        default=True,
+        default=0.003,
+        min=0.0,
+        soft_max=1.0,
+        precision=4,
+        step=0.01,
         update=_live_changed,
     )
     max_iterations: IntProperty(
-        name="Max Sweeps",
+        name="Max Iterations",
         description=(
-            "Most sweeps spent on one pose (Settle, each baked frame, and the live updates "
-            "after a drag); stops there if it has not converged"
+            "Most Newton iterations spent on one pose (Settle, each baked frame, and the live "
+            "updates after a drag); stops there if it has not converged"
         ),
-        default=20000,
-        min=10,
+        default=100,
+        min=1,
         update=_live_changed,
     )
 
@@ -109,22 +110,23 @@ PROGRESS_SECONDS = 0.1  # s between progress reports of a long solve (tests set 
 
 
 def _settle_report(progress, budget: int, tol: float):
-    """The library's progress(sweeps, move) as the operator's progress(fraction, text): the
+    """The library's progress(iterations, step) as the operator's progress(fraction, text): the
     fraction is the larger of the budget spent and the way from the first reported move down
     to tol on a log scale, never decreasing. A failing progress display never fails the solve
     (a RuntimeError from it would read as a diverged iteration)."""
     seen = {"first": None, "fraction": 0.0}
 
-    def report(sweeps: int, move: float) -> None:
+    def report(iterations: int, move: float) -> None:
         first = seen["first"] = seen["first"] or move
         by_move = 0.0
         if first > tol > 0 and move > 0:
             by_move = math.log(first / max(move, tol)) / math.log(first / tol)
-        seen["fraction"] = max(seen["fraction"], sweeps / max(budget, 1), by_move)
+        seen["fraction"] = max(seen["fraction"], iterations / max(budget, 1), by_move)
         try:
             progress(
                 min(seen["fraction"], 1.0),
-                f"Material Deform: settling, {sweeps} sweeps, move {move:.1e} (tolerance {tol:g})",
+                f"Material Deform: settling, {iterations} iterations, step {move:.1e} "
+                f"(tolerance {tol:g})",
             )
         except Exception as exc:  # the display only
             print(f"Material Deform: progress display failed: {exc}")
@@ -174,42 +176,59 @@ class PyramidMethod(Method):
         return np.einsum("kij,kj->ki", t[:, :3, :3], solver.rest) + t[:, :3, 3]
 
     def solve(self, solver, transforms, state, budget, progress=None, rotations=None) -> Result:
-        # rotations: ignored for now (the control vertices sit alike at 180 and 540 degrees; the
-        # turns are to give the iteration its start)
+        # rotations: the anchors' unwrapped vectors; each control gets its anchor's, so a start
+        # built from the controls (Settle, Bake) carries turns past half a turn. A warm start
+        # carries them already.
         # the object's settings, handed over by check_live (Bind's solve of a kept pose runs
         # before any live update: the defaults then)
-        tol, stretch, most = state.get("settings", (1e-6, True, 20000))
+        tol, weight, most = state.get("settings", (1e-6, 0.003, 100))
         targets = self.targets(solver, transforms)
-        pose = (targets.tobytes(), tol, stretch, most)
+        pose = (targets.tobytes(), tol, weight, most)
         if state.get("pose") != pose:
-            state["spent"] = 0  # a new pose or new settings: a new allowance of sweeps
+            state["spent"] = 0  # a new pose or new settings: a new allowance of iterations
         spent = state.get("spent", 0)
-        # Live updates warm-start from the last result and share Max Sweeps per pose. Settle
-        # and Bake start from the solver's own start (the controls' best-fit similarity of the
-        # rest mesh) with the whole allowance: the iteration has several fixed points, and warm
-        # starts from another frame reached a poorer one (edges 0.36-1.49x rest instead of
-        # 0.92-1.10x, docs/pyramid.md). So a baked frame depends on its pose only (a farm can
-        # bake frames in any order) and Settle equals the library.
+        # Live updates warm-start from the last result and share Max Iterations per pose.
+        # Settle and Bake start from the solver's own start (built from the controls alone)
+        # with the whole allowance: the energy can have several minima, so a baked frame then
+        # depends on its pose only (a farm can bake frames in any order) and Settle equals the
+        # library.
         if budget is None:
             it, x0 = most, None
         else:
             it, x0 = min(budget, max(most - spent, 1)), state.get("x")
         d = solver.deformer
+        vectors = (
+            None if rotations is None or x0 is not None else np.asarray(rotations)[solver.owner]
+        )
         try:
-            x = d.deform(
-                targets,
-                iterations=it,
-                tol=tol,
-                initial=x0,
-                stretch=stretch,
-                progress=None if progress is None else _settle_report(progress, it, tol),
-                progress_seconds=PROGRESS_SECONDS,
-            )
-            # The library's runaway test is relative to the start, and a live chain starts
-            # from the last result: so also bound the result by the pose itself. A result
-            # spans about the rest diagonal times the controls' spread relative to rest; 3x
-            # that plus the controls' own extent is a runaway (the review's cylinder chain
-            # went 8x, 17x, 21x ... the rest size in 30-sweep steps, then 1e18)
+            try:
+                x = d.deform(
+                    targets,
+                    iterations=it,
+                    tol=tol,
+                    initial=x0,
+                    scale_weight=weight,
+                    progress=None if progress is None else _settle_report(progress, it, tol),
+                    progress_seconds=PROGRESS_SECONDS,
+                    rotation_vectors=vectors,
+                )
+            except ValueError as exc:
+                # A sheared or unevenly scaled anchor has no rotation its controls' fit
+                # reproduces to 1e-4 rad: start from the principal logs instead.
+                if vectors is None or not str(exc).startswith("rotation_vectors"):
+                    raise
+                x = d.deform(
+                    targets,
+                    iterations=it,
+                    tol=tol,
+                    scale_weight=weight,
+                    progress=None if progress is None else _settle_report(progress, it, tol),
+                    progress_seconds=PROGRESS_SECONDS,
+                )
+            # A safety net: the library only lowers the energy from its start, but a live chain
+            # starts from the last result (or an undone key), so bound the result by the pose
+            # itself. A result spans about the rest diagonal times the controls' spread
+            # relative to rest; 3x that plus the controls' own extent is a runaway.
             if _extent(x) > 3.0 * (
                 solver.diagonal * _stretch_of(solver, targets) + _extent(targets)
             ):
@@ -219,16 +238,14 @@ class PyramidMethod(Method):
                 state.pop(k, None)
             raise ValueError(f"pyramid iteration failed ({exc})") from None
         spent = d.last_iterations if budget is None else spent + d.last_iterations
-        converged = bool(d.last_move < tol) or d.last_iterations < it
-        state.update(x=x, pose=pose, spent=spent, move=d.last_move, converged=converged)
+        converged = bool(d.last_converged)
+        state.update(x=x, pose=pose, spent=spent, move=d.last_step, converged=converged)
         state["iterations"] = d.last_iterations
-        # out of sweeps for this pose: final (not converged) rather than updating forever
+        # out of iterations for this pose: final (not converged) rather than updating forever
         return Result(x, done=converged or spent >= most)
 
     def status(self, state) -> tuple[bool, str] | None:
-        return convergence_status(
-            state, "sweeps", "raise Max Sweeps, or try Stretch Correction off"
-        )
+        return convergence_status(state, "iterations", "raise Max Iterations, or add anchors")
 
     def seed(self, solver, state, positions) -> None:
         state["x"] = np.array(positions, dtype=np.float64)
@@ -239,14 +256,14 @@ class PyramidMethod(Method):
     def check_live(self, obj, entry, depsgraph) -> None:
         """Hand the live settings to ``solve`` (which sees only the solver and its state)."""
         p = settings(obj).pyramid
-        entry.state["settings"] = (float(p.tolerance), bool(p.stretch), int(p.max_iterations))
+        entry.state["settings"] = (float(p.tolerance), float(p.scale_weight), int(p.max_iterations))
 
     def draw(self, layout, obj, entry) -> None:
         p = settings(obj).pyramid
         layout.prop(p, "live_iterations", text="Per Update")
         layout.prop(p, "tolerance")
         layout.prop(p, "max_iterations")
-        layout.prop(p, "stretch")
+        layout.prop(p, "scale_weight")
 
 
 register_method(PyramidMethod())

@@ -11,6 +11,7 @@
 #pragma once
 
 #include <Eigen/Core>
+#include <string>
 
 #include "matdeform/types.hpp"
 
@@ -52,6 +53,10 @@ Eigen::Matrix3d rotation_exp(const Eigen::Vector3d& omega);
 // Angle in [0, pi] of the rotation between exp(v) and R (R orthonormalised first): how far the
 // rotation vector v is from being a log of R. NaN when exp(v) is not finite (|v| ~ 1e154).
 double rotation_vector_mismatch(const Eigen::Vector3d& v, const Eigen::Matrix3d& R);
+// Throws std::invalid_argument "<name>: ..." unless v is finite and a log of R within
+// kRotationVectorTolerance; `of` names R in the message ("the rotation of transforms[2]").
+void check_rotation_vector(const Eigen::Vector3d& v, const Eigen::Matrix3d& R,
+                           const std::string& name, const std::string& of);
 
 // The log of rotation R (orthonormalised first) nearest to `near`. R's logs are
 // (theta + 2 pi n) u for its axis u, angle theta and every integer n, so this picks the whole
