@@ -108,16 +108,7 @@ _DIARY = [
 # Parts another branch is rewriting, exempt until it lands: page -> None (the whole page) or the
 # heading that starts the exempt section (up to the next heading of the same level). When the
 # part is clean, test_pending_parts_are_still_pending fails: drop its entry then.
-# - pyramid.md and performance.md's pyramid section: rewritten as a reference on another branch.
-# - pose_space.md: being edited on another branch; it still names issue numbers and links to
-#   quality.md's old heading (#pose-space-manipulation-issue-15), so it is not checked until then.
-# edge.md is also being edited elsewhere but is clean already, so it is checked like the others:
-# an exemption would only hide a diary line that branch brings back.
-_PENDING = {
-    "pyramid.md": None,
-    "pose_space.md": None,
-    "performance.md": "## Pyramid coordinates",
-}
+_PENDING: dict[str, str | None] = {}
 
 
 def _split_pending(page: Path) -> tuple[str, str]:
