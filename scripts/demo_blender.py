@@ -11,8 +11,7 @@
 - Pyramid coordinates: a tentacle and a bar posed with the anchor faces' vertices as the only
   control vertices, no painting: out/demo_pyramid.blend, out/demo_pyramid_blender.png;
 - a 540-degree twist keyed on the top Empty of a striped tube, Blender's Laplacian Deform
-  beside each method that carries turns past half a turn: out/demo_twist.blend,
-  out/demo_twist.png.
+  beside each of the four methods: out/demo_twist.blend, out/demo_twist.png.
 
     blender -b --factory-startup --python scripts/demo_blender.py      (or scripts/demo_blender.sh)
 
@@ -519,14 +518,29 @@ def _edge_twist_settings(obj):
     obj.material_deform.edge.stretch = 1.0
 
 
+def _pose_space_twist_example(obj):
+    # pose space blends example shapes: one key besides the rest, the tube twisted by 90
+    # degrees linearly along it (a blend of uniform twists stays a uniform twist)
+    co = np.empty(3 * len(obj.data.vertices), np.float32)
+    obj.data.vertices.foreach_get("co", co)
+    v = co.reshape(-1, 3).astype(np.float64)
+    a = 0.5 * math.pi * v[:, 2] / TWIST_LENGTH
+    c, s = np.cos(a), np.sin(a)
+    twisted = np.stack([c * v[:, 0] - s * v[:, 1], s * v[:, 0] + c * v[:, 1], v[:, 2]], 1)
+    obj.shape_key_add(name="Basis")
+    obj.shape_key_add(name="Twist").data.foreach_set("co", twisted.astype(np.float32).ravel())
+
+
 # (method, column label, settings applied before Bind)
 TWIST_METHODS = (
     ("MATERIAL", "Material-aware", None),
     ("EDGE", "Edge-based", _edge_twist_settings),
+    ("POSE_SPACE", "Pose space", _pose_space_twist_example),
+    ("PYRAMID", "Pyramid (unwinds)", None),
 )
 TWIST_DEGREES, TWIST_FRAME = 540, 19  # keyed from 0 at frame 1, linearly: 30 degrees a frame
 TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.3, 61, 24
-TWIST_SPACING = 1.8  # between the columns' axes
+TWIST_SPACING = 2.0  # between the columns' axes
 
 
 def striped_tube(name, x):
@@ -617,7 +631,7 @@ def build_twist():
         if ob.type == "EMPTY":
             ob.empty_display_size = 0.35
         if ob.type == "FONT":
-            ob.data.size = 0.28
+            ob.data.size = 0.24
     camera_and_light(scene)
     scene.world.color = (0.18, 0.18, 0.2)  # the white labels read on a dark ground
     cam = scene.camera
