@@ -13,6 +13,10 @@
 #include <utility>
 #include <vector>
 
+#ifdef _OPENMP
+#include <omp.h>
+#endif
+
 #include "matdeform/threads.hpp"
 #include "simd.hpp"
 #include "task_pool.hpp"
@@ -396,6 +400,25 @@ std::mutex& factor_mutex() {
   return m;
 }
 
+// CHOLMOD's supernodal factorisation runs a few OpenMP loops per supernode (clearing and
+// scattering into it), with a fixed team of 4 threads in SuiteSparse 5. Each loop is a few
+// hundred entries of copying behind a team wake-up and barrier; with 4 threads on 2 cores
+// those barriers cost more than the factorisation's flops (a 7.5k-unknown pyramid Hessian:
+// 115 ms instead of 20). Held while a factorisation runs: OpenMP regions on this thread run
+// with one thread (BLAS does the real work, serially, either way).
+class SerialOpenMP {
+ public:
+#ifdef _OPENMP
+  SerialOpenMP() : saved_(omp_get_max_active_levels()) { omp_set_max_active_levels(0); }
+  ~SerialOpenMP() { omp_set_max_active_levels(saved_); }
+  SerialOpenMP(const SerialOpenMP&) = delete;
+  SerialOpenMP& operator=(const SerialOpenMP&) = delete;
+
+ private:
+  int saved_;
+#endif
+};
+
 }  // namespace
 
 struct SparseCholesky::Impl {
@@ -460,6 +483,7 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   if (reuse == Reuse::Refactor) {
     {
       const std::lock_guard<std::mutex> lock(factor_mutex());
+      const SerialOpenMP serial;
       impl_->L = cholmod_analyze(As, c);
     }
     impl_->A = As;
@@ -472,6 +496,7 @@ SparseCholesky::SparseCholesky(const Eigen::SparseMatrix<double>& A_in, Reuse re
   int status;
   {
     const std::lock_guard<std::mutex> lock(factor_mutex());
+    const SerialOpenMP serial;
     impl_->L = cholmod_analyze(As, c);
     if (impl_->L) cholmod_factorize(As, impl_->L, c);
     status = c->status;
@@ -516,6 +541,7 @@ bool SparseCholesky::refactor(const double* values) {
   int status;
   {
     const std::lock_guard<std::mutex> flock(factor_mutex());
+    const SerialOpenMP serial;
     cholmod_factorize(impl_->A, impl_->L, c);
     status = c->status;
   }
