@@ -107,6 +107,7 @@ void bind_pyramid_deformer(py::module_& m) {
       .def_property_readonly("last_converged", &PyramidDeformer::last_converged)
       .def_property_readonly("last_energy", &PyramidDeformer::last_energy)
       .def_property_readonly("last_factorizations", &PyramidDeformer::last_factorizations)
+      .def_property_readonly("last_lbfgs_iterations", &PyramidDeformer::last_lbfgs_iterations)
       .def_property_readonly("num_free", &PyramidDeformer::num_free)
       .def_property_readonly("num_passive", &PyramidDeformer::num_passive)
       .def_property_readonly("diagonal", &PyramidDeformer::diagonal);

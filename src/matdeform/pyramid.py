@@ -206,6 +206,12 @@ class PyramidDeformer:
         return self._core.last_factorizations
 
     @property
+    def last_lbfgs_iterations(self) -> int:
+        """L-BFGS iterations of the last deform() before its Newton iterations (the cheap
+        first phase, docs/pyramid.md)."""
+        return self._core.last_lbfgs_iterations
+
+    @property
     def coordinates(self) -> dict:
         """The rest description, as returned by :func:`pyramid_coordinates`."""
         return self._core.coordinates

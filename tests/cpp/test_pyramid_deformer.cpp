@@ -287,12 +287,15 @@ TEST(PyramidDeformer, ConvergesQuadraticallyOnABentTube) {
   const Vertices X = d.deform(T, o);
   ASSERT_TRUE(d.last_converged());
   const std::vector<double>& s = d.last_steps();
-  ASSERT_GE(s.size(), 4u);
-  EXPECT_LE(s.size(), 8u);
+  // The L-BFGS phase ends with steps below 1e-4 of the diagonal; Newton's method then needs a
+  // few iterations (a wrong inverse-Hessian update in that phase leaves it far longer).
+  EXPECT_GT(d.last_lbfgs_iterations(), 0);
+  EXPECT_LE(d.last_lbfgs_iterations(), 40);
+  ASSERT_GE(s.size(), 3u);
+  EXPECT_LE(s.size(), 4u);
   const size_t n = s.size();
   EXPECT_LT(s[n - 1], 1e-10);
-  // Measured 5e-4 -> 6e-7 -> 9e-12 (of the diagonal): each step at most a few times the square
-  // of the one before, down to round-off.
+  // Each step at most a few times the square of the one before, down to round-off.
   for (size_t i = n - 3; i + 1 < n; ++i) {
     EXPECT_LT(s[i + 1], 20 * s[i] * s[i] + 1e-11) << i << ": " << s[i] << " -> " << s[i + 1];
   }

@@ -262,7 +262,9 @@ def test_energy_and_gradient_agree_and_vanish_at_the_result():
     ctrl = np.concatenate([lo, hi])
     d = md.PyramidDeformer(v, f, ctrl)
     target = bent(v, lo, hi, 0.9)
-    X = d.deform(target)
+    # converged well below the default tol: Newton's last step leaves an error of about
+    # C step^2 (C ~ 20 diagonals here), so at tol 1e-6 the gradient is only ~1e-10 relative
+    X = d.deform(target, tol=1e-8)
     rng = np.random.default_rng(8)
     Y = X + 0.05 * rng.normal(size=X.shape)
     D = rng.normal(size=X.shape)
@@ -531,9 +533,13 @@ def test_progress_reports_every_iteration_and_changes_nothing():
     calls = []
     x = d.deform(target, tol=1e-10, progress=lambda i, s: calls.append((i, s)), progress_seconds=0)
     assert x.tobytes() == plain.tobytes()
-    assert [i for i, _ in calls] == list(range(1, len(steps) + 1))
-    np.testing.assert_array_equal([s for _, s in calls], steps)
-    assert len(steps) >= 4
+    # the L-BFGS phase reports with 0 iterations, once per L-BFGS iteration, before the Newton
+    # iterations
+    first = [i for i, _ in calls].count(0)
+    assert first == d.last_lbfgs_iterations > 0
+    assert [i for i, _ in calls] == [0] * first + list(range(1, len(steps) + 1))
+    np.testing.assert_array_equal([s for _, s in calls[first:]], steps)
+    assert len(steps) >= 2
 
     class Stop(Exception):
         pass

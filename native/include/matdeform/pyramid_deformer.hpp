@@ -117,6 +117,9 @@ class PyramidDeformer {
   bool last_converged() const { return last_converged_; }
   double last_energy() const { return last_energy_; }
   int last_factorizations() const { return last_factorizations_; }
+  // L-BFGS iterations before the Newton iterations (preconditioned by the Hessian's constant
+  // part; docs/pyramid.md).
+  int last_lbfgs_iterations() const { return last_lbfgs_iterations_; }
 
  private:
   struct Impl;
@@ -129,6 +132,7 @@ class PyramidDeformer {
   bool last_converged_ = false;
   double last_energy_ = 0;
   int last_factorizations_ = 0;
+  int last_lbfgs_iterations_ = 0;
 };
 
 }  // namespace matdeform
