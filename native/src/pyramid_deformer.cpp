@@ -38,6 +38,9 @@ constexpr double kDampingMost = 1e12;
 // iterations; kHistory correction pairs.
 constexpr double kQuasiUntil = 1e-4;
 constexpr int kQuasiMost = 1000;
+// ... and at most this many per Newton iteration of the call's budget, so that a live update
+// with a budget of one iteration stays within a few factorisations' time.
+constexpr int kQuasiPerNewton = 50;
 constexpr int kHistory = 8;
 }  // namespace
 
@@ -81,7 +84,8 @@ struct PyramidDeformer::Impl {
   }
   // The same, keeping the fits in *keep (if not null).
   double fit_all(const double* X, double kappa, std::vector<Fit>* keep);
-  std::vector<Fit> trial_fits;  // a line search's fits, swapped into `fits` when accepted
+  std::vector<Fit> trial_fits;   // a line search's fits, swapped into `fits` when accepted
+  std::vector<double> energies;  // fit_all's per-pyramid energies
   void gradient(const double* X, Eigen::VectorXd* g) const;
   // Every pyramid's Hessian terms at the current fits; returns whether the positive
   // semidefinite version changed any (exact = false).
@@ -275,7 +279,8 @@ PyramidDeformer::Impl::Impl(const Vertices& vertices, const Faces& faces,
 
 double PyramidDeformer::Impl::fit_all(const double* X, double kappa, std::vector<Fit>* keep) {
   const int np = count();
-  std::vector<double> e(static_cast<size_t>(np));
+  std::vector<double>& e = energies;
+  e.resize(static_cast<size_t>(np));
   if (keep) keep->resize(static_cast<size_t>(np));
   parallel_ranges(np, kMinChunk, chunks(), [&](int b, int end) {
     for (int c = b; c < end; ++c) {
@@ -650,27 +655,33 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   // local-global step (fits held fixed, positions solved exactly). It closes most of the
   // distance from the start cheaply; Newton's method then finishes from close by.
   last_lbfgs_iterations_ = 0;
-  if (S.fixed && kQuasiMost > 0) {
-    std::vector<Eigen::VectorXd> hs, hy;
-    std::vector<double> hrho;
-    Eigen::VectorXd q, gn, a_hist;
+  const int quasi_most = static_cast<int>(
+      std::min<long long>(kQuasiMost, 1LL * kQuasiPerNewton * options.max_iterations));
+  if (S.fixed) {
+    // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest),
+    // allocated once per call.
+    std::vector<Eigen::VectorXd> hs(kHistory, Eigen::VectorXd(3 * nf)), hy = hs;
+    double hrho[kHistory], a_hist[kHistory];
+    int pairs = 0, oldest = 0;
+    auto slot = [&](int j) { return (oldest + j) % kHistory; };
+    Eigen::VectorXd q(3 * nf), gn(3 * nf);
     S.gradient(X.data(), &g);
-    for (int it = 0; it < kQuasiMost; ++it) {
+    for (int it = 0; it < quasi_most; ++it) {
       q = -g;
-      const int h = static_cast<int>(hs.size());
-      a_hist.resize(h);
-      for (int i = h - 1; i >= 0; --i) {
+      for (int j = pairs - 1; j >= 0; --j) {
+        const int i = slot(j);
         a_hist[i] = hrho[i] * hs[i].dot(q);
         q -= a_hist[i] * hy[i];
       }
       S.fixed_solve(q, &d);
-      for (int i = 0; i < h; ++i) {
+      for (int j = 0; j < pairs; ++j) {
+        const int i = slot(j);
         const double b = hrho[i] * hy[i].dot(d);
         d += (a_hist[i] - b) * hs[i];
       }
       double slope = g.dot(d);
       if (!(slope < 0)) {
-        hs.clear(), hy.clear(), hrho.clear();
+        pairs = 0;
         q = -g;
         S.fixed_solve(q, &d);
         slope = g.dot(d);
@@ -695,16 +706,19 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       ++last_lbfgs_iterations_;
       S.gradient(X.data(), &gn);
       const double step = step_of(alpha);
-      Eigen::VectorXd sv = alpha * d, yv = gn - g;
-      const double sy = sv.dot(yv);
+      // The new pair goes to the next free slot, or over the oldest.
+      const int i = pairs < kHistory ? slot(pairs) : oldest;
+      hs[i] = alpha * d;
+      hy[i] = gn - g;
+      const double sy = hs[i].dot(hy[i]);
       // A pair with no positive curvature would make the inverse update indefinite: skipped.
-      if (sy > 1e-12 * sv.norm() * yv.norm()) {
-        if (static_cast<int>(hs.size()) == kHistory) {
-          hs.erase(hs.begin()), hy.erase(hy.begin()), hrho.erase(hrho.begin());
+      if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {
+        hrho[i] = 1.0 / sy;
+        if (pairs < kHistory) {
+          ++pairs;
+        } else {
+          oldest = (oldest + 1) % kHistory;
         }
-        hs.push_back(std::move(sv));
-        hy.push_back(std::move(yv));
-        hrho.push_back(1.0 / sy);
       }
       g.swap(gn);
       if (options.progress) {

@@ -108,7 +108,11 @@ class PyramidDeformer:
         control_positions : (k,3) float, in the order of ``control`` (mesh unit), each
             coordinate within +-1e50.
         iterations : most Newton iterations, int in [0, 2**31 - 1]; None: 100. Each one
-            factors the Hessian once (twice where the exact Hessian is not positive definite).
+            factors the Hessian at most once (twice where the exact Hessian is not positive
+            definite). Before them an L-BFGS phase (about 1 ms per iteration at 5k faces) runs
+            until a step moves no vertex by more than 1e-4 x diagonal, at most 50 iterations
+            per Newton iteration of this budget and 1000 in all (docs/pyramid.md); 0 returns
+            the start.
         tol : converged once a full Newton step moves no vertex by more than tol x the rest
             bounding-box diagonal (float >= 0; 0 runs the whole budget). That last step is
             applied, which leaves the result about tol^2 x diagonal from the minimum.
@@ -120,10 +124,11 @@ class PyramidDeformer:
             only its shape up to scale (what the description fixes), large values approach
             rigid pyramids.
         progress : None, or a callable ``progress(iterations, step)`` (int, float: that
-            iteration's largest vertex move as a fraction of the diagonal), called after an
-            iteration at most every ``progress_seconds`` (float >= 0, 0: after every one) and
-            after the last one, on the calling thread. An exception it raises ends the call and
-            propagates. The result does not depend on it.
+            iteration's largest vertex move as a fraction of the diagonal; iterations is 0 in
+            the L-BFGS phase), called after an iteration at most every ``progress_seconds``
+            (float >= 0, 0: after every one) and after the last one, on the calling thread.
+            An exception it raises ends the call and propagates. The result does not depend
+            on it.
         rotation_vectors : None, or (k,3) float, one rotation vector (axis * angle, radians,
             any length, e.g. from ``unwrap_rotations``) per control in the order of
             ``control``, typically its anchor's. The start then blends each control cluster's
@@ -133,7 +138,8 @@ class PyramidDeformer:
             of the rotation fitted to that cluster: its exp within 1e-4 rad of it, else
             ValueError; other controls' vectors are not used. Not used with ``initial``.
 
-        After the call ``last_iterations`` is the number of Newton iterations, ``last_step``
+        After the call ``last_iterations`` is the number of Newton iterations
+        (``last_lbfgs_iterations`` those of the phase before them), ``last_step``
         the last one's largest vertex move (fraction of the diagonal; NaN after 0 iterations),
         ``last_converged`` whether the stopping rule was met, ``last_energy`` the energy.
         Raises ValueError for bad input and RuntimeError if the energy stops being finite.

@@ -45,7 +45,9 @@ struct PyramidCoordinates {
 PyramidCoordinates pyramid_coordinates(const Vertices& vertices, const Faces& faces);
 
 struct PyramidSolveOptions {
-  int max_iterations = 100;  // >= 0: Newton iterations (each one factorisation, or a few)
+  // >= 0: Newton iterations (each one factorisation at most, or two). An L-BFGS phase runs
+  // before them, at most 50 iterations per Newton iteration of this budget (1000 in all).
+  int max_iterations = 100;
   // Converged once a full Newton step (exact Hessian, no damping) moves no vertex by more than
   // tol x the rest diagonal; that step is applied, which leaves the result about tol^2 x diagonal
   // from the minimum (quadratic convergence, docs/pyramid.md). >= 0.
@@ -63,9 +65,10 @@ struct PyramidSolveOptions {
   // rotation must be a log of the rotation fitted to that cluster (within
   // kRotationVectorTolerance); other controls' vectors are not used. Not used with `initial`.
   const Vectors3* rotation_vectors = nullptr;
-  // Called on the calling thread after an iteration with (iterations so far, that iteration's
-  // step as a fraction of the rest diagonal), at most every progress_seconds (0: after every
-  // one) and after the converged one. An exception it throws ends deform() and propagates.
+  // Called on the calling thread after an iteration with (Newton iterations so far, 0 in the
+  // L-BFGS phase; that iteration's step as a fraction of the rest diagonal), at most every
+  // progress_seconds (0: after every one) and after the converged one. An exception it throws ends
+  // deform() and propagates.
   std::function<void(int, double)> progress;
   double progress_seconds = 0.1;
 };
