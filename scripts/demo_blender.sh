@@ -11,6 +11,11 @@ if ! blender_can_import numpy; then
   blender_can_import numpy || { echo "Debian's blender cannot import numpy" >&2; exit 2; }
 fi
 VENDOR="$ROOT/build/addon/legacy/material_deform/_vendor"
-[[ -d "$VENDOR/matdeform" ]] || scripts/build_addon.sh
+# Rebuild when missing or older than any source it is built from (a stale core would show the
+# last build's behaviour in the pictures).
+if [[ ! -f "$VENDOR/matdeform/__init__.py" ]] \
+  || [[ -n "$(find native src addon CMakeLists.txt pyproject.toml -newer "$VENDOR/matdeform/__init__.py" -type f 2>/dev/null | head -1)" ]]; then
+  scripts/build_addon.sh
+fi
 MD_SYS_PATH="$VENDOR" blender -b --factory-startup --python-exit-code 1 \
   --python scripts/demo_blender.py
