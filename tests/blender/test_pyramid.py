@@ -97,8 +97,8 @@ def test_settle_equals_the_numpy_library_on_the_same_inputs():
 
 
 def test_settle_shows_its_progress_while_it_iterates(monkeypatch):
-    """Settle's status text and progress fraction move during the solve, one report per Newton
-    iteration, and the result is the same bits."""
+    """Settle's status text and progress fraction move during the solve, one report per L-BFGS
+    and per Newton iteration, and the result is the same bits."""
     obj, top, bottom = pyramid_bar()
     obj.material_deform.live = False
     obj.material_deform.pyramid.tolerance = 1e-9
@@ -121,10 +121,14 @@ def test_settle_shows_its_progress_while_it_iterates(monkeypatch):
 
     monkeypatch.setattr(_pyramid_module(), "_settle_report", recording)
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
-    counts = [int(t.split(", ")[1].split()[0]) for t in texts if t and "iterations" in t]
+    # the L-BFGS phase first, then one report per Newton iteration
+    phases = [t.split(", ")[1] for t in texts if t and "settling, " in t]
+    first = phases.count("L-BFGS")
+    assert first > 0 and phases[:first] == ["L-BFGS"] * first
+    counts = [int(p.split()[0]) for p in phases[first:]]
     iterations = session.entry_for(obj, bpy.context.scene).state["iterations"]
-    assert counts == list(range(1, iterations + 1)) and iterations >= 3
-    assert fractions == sorted(fractions) and 0 < fractions[0] and fractions[-1] <= 1
+    assert counts == list(range(1, iterations + 1)) and iterations >= 2
+    assert fractions == sorted(fractions) and 0 <= fractions[0] < fractions[-1] <= 1
     assert fractions[-1] > 0.9  # converged: the log-scale share of the way to tol
     assert texts[-1] is None  # cleared at the end
     assert output(obj).tobytes() == quiet.tobytes()
@@ -216,13 +220,16 @@ def test_live_updates_spend_the_budget_and_keep_settling():
     entry = session.entry_for(obj, bpy.context.scene)
     assert entry.state["iterations"] == 1 and entry.state["move"] >= 1e-8
     first = output(obj).copy()
+    timer = 0
     for _ in range(5000):  # what the handlers' timer does until the result has settled
         if not session.unsettled():
             break
         handlers._keep_settling()
+        timer += 1
     assert not session.unsettled(), entry.state["move"]
     settled = output(obj).copy()
-    assert np.abs(settled - first).max() > 1e-4  # it kept moving after the drag
+    # it kept moving after the drag (the L-BFGS phase takes the first update most of the way)
+    assert timer >= 1 and np.abs(settled - first).max() > 0
     assert entry.state["move"] < 1e-8 and entry.state["converged"]
     # a fixed point: one more live update from there moves nothing
     entry.last_key = None
@@ -449,7 +456,8 @@ def test_budget_is_the_number_of_iterations_per_update(budget):
 def test_a_pose_that_does_not_converge_stops_after_max_iterations():
     obj, top, _ = pyramid_bar(rings=21)
     p = obj.material_deform.pyramid
-    p.tolerance, p.live_iterations, p.max_iterations = 1e-12, 1, 3
+    # two Newton iterations (after the L-BFGS phase) do not reach 1e-12: three do
+    p.tolerance, p.live_iterations, p.max_iterations = 1e-12, 1, 2
     top.empty.location.x += 1.2
     top.empty.rotation_euler.y = 0.8
     update()
@@ -458,18 +466,18 @@ def test_a_pose_that_does_not_converge_stops_after_max_iterations():
     while session.unsettled() and calls < 100:
         handlers._keep_settling()
         calls += 1
-    assert not session.unsettled() and calls == 2  # 1 + 1 + 1 iterations
-    assert entry.state["spent"] == 3 and not entry.state["converged"]
+    assert not session.unsettled() and calls == 1  # 1 + 1 iterations
+    assert entry.state["spent"] == 2 and not entry.state["converged"]
     # Settle starts over from the solver's own start (no initial) with the whole allowance,
     # and says that it did not converge
     spy = Spy(entry)
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
     assert spy.calls == [None]
     entry.solver.deformer = spy.inner
-    assert entry.state["iterations"] == 3 and entry.state["spent"] == 3
+    assert entry.state["iterations"] == 2 and entry.state["spent"] == 2
     status = session.solve_status(obj)
     assert status is not None and not status[0]
-    assert "Not converged after 3 iterations" in status[1]
+    assert "Not converged after 2 iterations" in status[1]
     # a changed setting is a new problem: a new allowance for the live updates too
     p.scale_weight = 0.01
     update()

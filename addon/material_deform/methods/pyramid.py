@@ -122,11 +122,12 @@ def _settle_report(progress, budget: int, tol: float):
         if first > tol > 0 and move > 0:
             by_move = math.log(first / max(move, tol)) / math.log(first / tol)
         seen["fraction"] = max(seen["fraction"], iterations / max(budget, 1), by_move)
+        # The library reports its L-BFGS phase with 0 Newton iterations.
+        phase = f"{iterations} iterations" if iterations else "L-BFGS"
         try:
             progress(
                 min(seen["fraction"], 1.0),
-                f"Material Deform: settling, {iterations} iterations, step {move:.1e} "
-                f"(tolerance {tol:g})",
+                f"Material Deform: settling, {phase}, step {move:.1e} (tolerance {tol:g})",
             )
         except Exception as exc:  # the display only
             print(f"Material Deform: progress display failed: {exc}")
