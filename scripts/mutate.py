@@ -180,32 +180,11 @@ MUTATIONS = [
         "pyramid Hessian: the rotation terms forget the pyramid's scale",
     ),
     M(
-        "P3",
-        "native/src/simd.cpp",
-        "o0 = o0 - gj * MD_LD4(col), o1 = o1 - gj * MD_LD4(col + 4);",
-        "o0 = o0 + gj * MD_LD4(col), o1 = o1 + gj * MD_LD4(col + 4);",
-        "Anderson acceleration steps the wrong way",
-    ),
-    M(
         "P5",
         "native/src/pyramid_energy.cpp",
         "coef[j] = std::min(lam, 2.0);",
         "coef[j] = lam;",
         "the positive semidefinite pyramid Hessian is not clamped (indefinite far from rest)",
-    ),
-    M(
-        "P6",
-        "native/src/simd.cpp",
-        "for (; i < n; ++i) rb += a[i] * b[i], rc += a[i] * c[i];",
-        "for (; i < n; ++i) rb += a[i] * b[i];",
-        "Anderson's dF^T f drops an odd column's entries after its last full block of 8",
-    ),
-    M(
-        "P9",
-        "native/src/simd.cpp",
-        "re += d[i] * b[i], rf += d[i] * c[i];",
-        "re += d[i] * b[i];",
-        "the second column of a pair in Anderson's dF^T f drops its tail entries",
     ),
     M(
         "P7",
@@ -298,8 +277,10 @@ MUTATIONS = [
     M(
         "P10",
         "native/src/pyramid_deformer.cpp",
-        "if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
-        "if (std::isfinite(Et)) {",
+        "const double Et = S.fit_all(trial.data(), kappa, false);\n"
+        "        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
+        "const double Et = S.fit_all(trial.data(), kappa, false);\n"
+        "        if (std::isfinite(Et)) {",
         "pyramid Newton: every step is accepted, also one that raises the energy",
     ),
     M(
@@ -308,6 +289,37 @@ MUTATIONS = [
         "      if (!S.moving[static_cast<size_t>(v)]) X.row(v) = S.placement.rest.row(v);",
         "",
         "a warm start moves a part no control reaches away from rest",
+    ),
+    # The pyramid's L-BFGS phase before Newton's method.
+    M(
+        "Q1",
+        "native/src/pyramid_deformer.cpp",
+        "        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
+        "        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
+        "        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
+        "        if (std::isfinite(Et)) {",
+        "pyramid L-BFGS: every step is accepted, also one that raises the energy",
+    ),
+    M(
+        "Q2",
+        "native/src/pyramid_deformer.cpp",
+        "d += (a_hist[i] - b) * hs[i];",
+        "d += (b - a_hist[i]) * hs[i];",
+        "pyramid L-BFGS: the two-loop recursion's second loop corrects the wrong way",
+    ),
+    M(
+        "Q3",
+        "native/src/pyramid_deformer.cpp",
+        "tri.emplace_back(I, J, 2.0 * ((I == J ? 1.0 : 0.0) - 1.0 / M));",
+        "tri.emplace_back(I, J, 2.0 * ((I == J ? 1.0 : 0.0) - 0.5 / M));",
+        "pyramid L-BFGS: the constant matrix's off-diagonal coupling is halved",
+    ),
+    M(
+        "Q4",
+        "native/src/pyramid_deformer.cpp",
+        "      if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {",
+        "      if (false && sy > 1e-12 * hs[i].norm() * hy[i].norm()) {",
+        "pyramid L-BFGS keeps no correction pairs (the local-global step alone)",
     ),
     M(
         "RP1",

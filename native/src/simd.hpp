@@ -194,15 +194,6 @@ MD_ALWAYS_INLINE void sqrt4(const Vec4d& a, Vec4d* out) {
   *out = Vec4d{std::sqrt(a[0]), std::sqrt(a[1]), std::sqrt(a[2]), std::sqrt(a[3])};
 }
 
-// Shared vector kernels (both builds, dispatched). Anderson acceleration's history passes:
-// ab[j] = col_j . b and ac[j] = col_j . c over n entries, col_j = cols + j * ld, j < k.
-void dot2_columns(const double* cols, std::ptrdiff_t ld, int k, const double* b, const double* c,
-                  std::ptrdiff_t n, double* ab, double* ac);
-// out = base - sum_{j < k} gamma_j col_j over n entries, col_j = cols + j * ld (out may not
-// overlap the columns).
-void subtract_columns(const double* cols, std::ptrdiff_t ld, int k, const double* gamma,
-                      const double* base, double* out, std::ptrdiff_t n);
-
 // True when the AVX2+FMA builds are to be used: the CPU runs them (checked once) and they are
 // not switched off.
 bool cpu_has_avx2_fma();

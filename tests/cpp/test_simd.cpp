@@ -23,54 +23,6 @@ struct BaselineKernels {
   ~BaselineKernels() { set_avx2_kernels_enabled(before); }
 };
 
-// Anderson's history kernels against plain loops, every length up to two blocks of the
-// subtraction (tails of the 8-wide dot loop and of the 16- and 4-wide update), pairs of columns
-// and an odd one out, both builds.
-TEST(Simd, Dot2ColumnsAndSubtractColumnsMatchPlainLoops) {
-  for (bool avx2 : {true, false}) {
-    if (avx2 && !cpu_has_avx2_fma()) continue;
-    const bool before = set_avx2_kernels_enabled(avx2);
-    for (int n : {0, 1, 3, 4, 7, 8, 9, 15, 16, 17, 20, 511, 512, 513, 1029}) {
-      const int k = 5, ld = n + 3;
-      std::vector<double> cols(static_cast<size_t>(k) * ld), b(n), c(n), base(n), gamma(k);
-      for (size_t i = 0; i < cols.size(); ++i) cols[i] = std::sin(0.7 * i + 0.1);
-      for (int i = 0; i < n; ++i) b[i] = std::cos(1.3 * i), c[i] = 0.5 - 0.01 * i, base[i] = i;
-      for (int j = 0; j < k; ++j) gamma[j] = 0.3 * j - 0.5;
-      for (int kk : {1, 2, 5}) {
-        std::vector<double> ab(kk, -1), ac(kk, -1);
-        dot2_columns(cols.data(), ld, kk, b.data(), c.data(), n, ab.data(), ac.data());
-        for (int j = 0; j < kk; ++j) {
-          double want_b = 0, want_c = 0;
-          for (int i = 0; i < n; ++i) {
-            want_b += cols[static_cast<size_t>(j) * ld + i] * b[i];
-            want_c += cols[static_cast<size_t>(j) * ld + i] * c[i];
-          }
-          EXPECT_NEAR(ab[j], want_b, 1e-12 * (1 + n)) << n << " " << kk << " " << j << " " << avx2;
-          EXPECT_NEAR(ac[j], want_c, 1e-12 * (1 + n)) << n << " " << kk << " " << j << " " << avx2;
-          // A column gives the same bits alone as in a pair (the sweep counts depend on them).
-          double one_b = 0, one_c = 0;
-          dot2_columns(cols.data() + static_cast<size_t>(j) * ld, ld, 1, b.data(), c.data(), n,
-                       &one_b, &one_c);
-          EXPECT_EQ(ab[j], one_b) << n << " " << kk << " " << j << " " << avx2;
-          EXPECT_EQ(ac[j], one_c) << n << " " << kk << " " << j << " " << avx2;
-        }
-      }
-      // k = 0: the first sweep has no history (nothing read, nothing written)
-      dot2_columns(cols.data(), ld, 0, b.data(), c.data(), n, nullptr, nullptr);
-      for (int kk = 0; kk <= k; ++kk) {
-        std::vector<double> out(n, -7.0);
-        subtract_columns(cols.data(), ld, kk, gamma.data(), base.data(), out.data(), n);
-        for (int i = 0; i < n; ++i) {
-          double want = base[i];
-          for (int j = 0; j < kk; ++j) want -= gamma[j] * cols[static_cast<size_t>(j) * ld + i];
-          ASSERT_NEAR(out[i], want, 1e-12 * (1 + i)) << n << " " << kk << " " << i << " " << avx2;
-        }
-      }
-    }
-    set_avx2_kernels_enabled(before);
-  }
-}
-
 TEST(Simd, BuildUsesTheRequestedPath) {
 #if defined(MATDEFORM_PORTABLE_SIMD) || !(defined(__GNUC__) || defined(__clang__))
   EXPECT_STREQ(simd_path(), "portable");
