@@ -49,8 +49,9 @@ void bind_pyramid_deformer(py::module_& m) {
           [](PyramidDeformer& self, const Vertices& control_positions, int iterations, double tol,
              std::optional<Vertices> initial, double scale_weight,
              std::optional<py::function> progress, double progress_seconds,
-             std::optional<Vectors3> rotation_vectors) {
+             std::optional<Vectors3> rotation_vectors, int lbfgs_iterations) {
             PyramidSolveOptions o;
+            o.max_lbfgs_iterations = lbfgs_iterations;
             o.progress_seconds = progress_seconds;
             if (progress) {
               // Called between iterations on this thread; the function outlives the call, so
@@ -71,7 +72,8 @@ void bind_pyramid_deformer(py::module_& m) {
           },
           py::arg("control_positions"), py::arg("iterations"), py::arg("tol"), py::arg("initial"),
           py::arg("scale_weight"), py::arg("progress") = py::none(),
-          py::arg("progress_seconds") = 0.1, py::arg("rotation_vectors") = py::none())
+          py::arg("progress_seconds") = 0.1, py::arg("rotation_vectors") = py::none(),
+          py::arg("lbfgs_iterations") = -1)
       .def(
           "start",
           [](const PyramidDeformer& self, const Vertices& control_positions,

@@ -604,7 +604,6 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         "poses");
   }
   last_energy_ = E;
-  if (options.max_iterations == 0) return X;
 
   const double limit = options.tol * diag_;
   // The positive semidefinite Hessian far from the minimum, the exact one near it; a warm start
@@ -655,8 +654,10 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   // local-global step (fits held fixed, positions solved exactly). It closes most of the
   // distance from the start cheaply; Newton's method then finishes from close by.
   last_lbfgs_iterations_ = 0;
-  const int quasi_most = static_cast<int>(
-      std::min<long long>(kQuasiMost, 1LL * kQuasiPerNewton * options.max_iterations));
+  const int quasi_most = options.max_lbfgs_iterations >= 0
+                             ? options.max_lbfgs_iterations
+                             : static_cast<int>(std::min<long long>(
+                                   kQuasiMost, 1LL * kQuasiPerNewton * options.max_iterations));
   if (S.fixed) {
     // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest),
     // allocated once per call.
@@ -734,6 +735,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       }
     }
   }
+  last_energy_ = E;
   bool have_factor = false;
   while (last_iterations_ < options.max_iterations) {
     S.gradient(X.data(), &g);

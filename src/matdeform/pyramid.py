@@ -102,6 +102,7 @@ class PyramidDeformer:
         progress=None,
         progress_seconds: float = 0.1,
         rotation_vectors=None,
+        lbfgs_iterations: int | None = None,
     ) -> np.ndarray:
         """Deformed positions (n,3) float64 with the control vertices at control_positions.
 
@@ -110,9 +111,7 @@ class PyramidDeformer:
         iterations : most Newton iterations, int in [0, 2**31 - 1]; None: 100. Each one
             factors the Hessian at most once (twice where the exact Hessian is not positive
             definite). Before them an L-BFGS phase (about 1 ms per iteration at 5k faces) runs
-            until a step moves no vertex by more than 1e-4 x diagonal, at most 50 iterations
-            per Newton iteration of this budget and 1000 in all (docs/pyramid.md); 0 returns
-            the start.
+            until a step moves no vertex by more than 1e-4 x diagonal (docs/pyramid.md).
         tol : converged once a full Newton step moves no vertex by more than tol x the rest
             bounding-box diagonal (float >= 0; 0 runs the whole budget). That last step is
             applied, which leaves the result about tol^2 x diagonal from the minimum.
@@ -137,6 +136,9 @@ class PyramidDeformer:
             a rotation (at least three controls joined by edges, not on a line) must be a log
             of the rotation fitted to that cluster: its exp within 1e-4 rad of it, else
             ValueError; other controls' vectors are not used. Not used with ``initial``.
+        lbfgs_iterations : most L-BFGS iterations before the Newton ones, int in
+            [0, 2**31 - 1]; None: 50 per Newton iteration of ``iterations``, at most 1000
+            (so ``iterations=0`` returns the start). 0 goes straight to Newton's method.
 
         After the call ``last_iterations`` is the number of Newton iterations
         (``last_lbfgs_iterations`` those of the phase before them), ``last_step``
@@ -154,7 +156,8 @@ class PyramidDeformer:
             raise ValueError(f"progress: expected a callable or None, got {progress!r}")
         every = as_real(progress_seconds, "progress_seconds", 0.0)
         rv = None if rotation_vectors is None else as_rotation_vectors(rotation_vectors, k)
-        return self._core.deform(x, it, t, x0, w, progress, every, rv)
+        lb = -1 if lbfgs_iterations is None else as_count(lbfgs_iterations, "lbfgs_iterations")
+        return self._core.deform(x, it, t, x0, w, progress, every, rv, lb)
 
     def start(self, control_positions, rotation_vectors=None) -> np.ndarray:
         """The start deform() uses without ``initial`` (n,3), from control_positions (k,3) and

@@ -695,10 +695,15 @@ def case_pyramid(rng, v, f, hostile, perm, kind):
     }
     if rng.random() < 0.3:
         kw["initial"] = v * 10.0 ** rng.uniform(-1, 1) + rng.normal(scale=0.1 * diag, size=v.shape)
+    if rng.random() < 0.3:
+        kw["lbfgs_iterations"] = int(rng.choice([0, 1, 7, 60]))
     if hostile:
-        what = rng.choice(["iterations", "tol", "scale_weight", "initial", "target", "control"])
-        if what == "iterations":
-            kw["iterations"] = rng.choice([-1, 2**31, 2**40, 1.5, "x"]).item()
+        what = rng.choice(
+            ["iterations", "lbfgs_iterations", "tol", "scale_weight"]
+            + ["initial", "target", "control"]
+        )
+        if what in ("iterations", "lbfgs_iterations"):
+            kw[what] = rng.choice([-1, 2**31, 2**40, 1.5, "x"]).item()
         elif what == "tol":
             kw["tol"] = rng.choice([-1e-6, np.nan, np.inf, "x"]).item()
         elif what == "scale_weight":

@@ -590,10 +590,11 @@ def test_the_sliver_capped_cylinder_converges_instead_of_running_away():
 
 
 def test_no_iteration_raises_the_energy():
-    """Each Newton iteration either lowers the energy (line search, damping) or keeps it, from
-    the start and from a noisy warm start far from the minimum: the energy after k iterations
-    (the same work as the first k of a longer run) never grows with k. A step that raised it
-    would be how a runaway starts."""
+    """Each Newton iteration and each L-BFGS iteration either lowers the energy (line search,
+    damping) or keeps it, from the start and from a noisy warm start far from the minimum: the
+    energy after k iterations (the same work as the first k of a longer run) never grows with
+    k. A step that raised it would be how a runaway starts. Newton's method is run without the
+    L-BFGS phase here (lbfgs_iterations=0), so that its steps start far away."""
     z = np.load(Path(__file__).parent / "data" / "cylinder_subdivided_ngon_caps.npz")
     v = z["vertices"].astype(np.float64)
     bv, bf, lo, hi = bar()
@@ -602,18 +603,32 @@ def test_no_iteration_raises_the_energy():
         (v, z["triangles"], z["controls"], z["targets"], None),
         (bv, bf, np.concatenate([lo, hi]), bent(bv, lo, hi, 2.5), None),
         (bv, bf, np.concatenate([lo, hi]), bent(bv, lo, hi, 1.0), noisy),
+        # where L-BFGS's full steps would raise the energy (twice in its first 60 iterations)
+        (bv, bf, np.concatenate([lo, hi]), bent(bv, lo, hi, 2.5), noisy),
     ]
     for v_, f_, c_, t_, start in cases:
         d = md.PyramidDeformer(v_, f_, c_)
         X0 = d.start(t_) if start is None else d.deform(t_, iterations=0, initial=start)
         energies = [d.energy(X0)[0]]
         for k in range(1, 41):
-            d.deform(t_, iterations=k, initial=start)
+            d.deform(t_, iterations=k, initial=start, lbfgs_iterations=0)
             energies.append(d.last_energy)
             if d.last_converged:
                 break
         rises = np.diff(energies)
         assert (rises <= 1e-12 * np.abs(energies[:-1])).all(), energies
+        # the L-BFGS phase alone: k of its iterations, no Newton iteration
+        energies = [d.energy(X0)[0]]
+        for k in range(1, 61):
+            X = d.deform(t_, iterations=0, initial=start, lbfgs_iterations=k)
+            assert d.last_iterations == 0 and d.last_lbfgs_iterations <= k
+            energies.append(d.last_energy)
+            assert d.last_energy == pytest.approx(d.energy(X)[0], rel=1e-12)
+            if d.last_lbfgs_iterations < k:  # it stopped on its own (a small step)
+                break
+        rises = np.diff(energies)
+        assert (rises <= 1e-12 * np.abs(energies[:-1])).all(), energies
+        assert energies[-1] < 0.9 * energies[0]  # and it did lower it
 
 
 def cat_protocol():
@@ -704,8 +719,10 @@ def test_bad_deform_arguments_raise_and_change_nothing():
     with pytest.raises(ValueError, match="initial: contains NaN or infinity"):
         d.deform(good, initial=bad)
     for it in (-1, 2.5, 2**31, True, "3"):
-        with pytest.raises(ValueError, match=r"iterations: expected an integer in \[0, "):
+        with pytest.raises(ValueError, match=r"^iterations: expected an integer in \[0, "):
             d.deform(good, iterations=it)
+        with pytest.raises(ValueError, match=r"^lbfgs_iterations: expected an integer in \[0, "):
+            d.deform(good, lbfgs_iterations=it)
     for tol in (-1.0, np.nan, np.inf, "x", None):
         with pytest.raises(ValueError, match="tol: expected a finite value"):
             d.deform(good, tol=tol)

@@ -45,9 +45,11 @@ struct PyramidCoordinates {
 PyramidCoordinates pyramid_coordinates(const Vertices& vertices, const Faces& faces);
 
 struct PyramidSolveOptions {
-  // >= 0: Newton iterations (each one factorisation at most, or two). An L-BFGS phase runs
-  // before them, at most 50 iterations per Newton iteration of this budget (1000 in all).
+  // >= 0: Newton iterations (each one factorisation at most, or two).
   int max_iterations = 100;
+  // The most L-BFGS iterations before them (docs/pyramid.md); < 0: 50 per Newton iteration of
+  // max_iterations, at most 1000. 0 goes straight to Newton's method.
+  int max_lbfgs_iterations = -1;
   // Converged once a full Newton step (exact Hessian, no damping) moves no vertex by more than
   // tol x the rest diagonal; that step is applied, which leaves the result about tol^2 x diagonal
   // from the minimum (quadratic convergence, docs/pyramid.md). >= 0.
