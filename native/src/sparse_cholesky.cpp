@@ -411,9 +411,16 @@ class SerialOpenMP {
 #ifdef _OPENMP
   SerialOpenMP() : saved_(omp_get_max_active_levels()) { omp_set_max_active_levels(0); }
   ~SerialOpenMP() { omp_set_max_active_levels(saved_); }
+#else
+  // Without OpenMP there is nothing to serialise (user-provided, so that a guard variable
+  // does not read as unused).
+  SerialOpenMP() {}
+  ~SerialOpenMP() {}
+#endif
   SerialOpenMP(const SerialOpenMP&) = delete;
   SerialOpenMP& operator=(const SerialOpenMP&) = delete;
 
+#ifdef _OPENMP
  private:
   int saved_;
 #endif
