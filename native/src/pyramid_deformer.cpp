@@ -86,6 +86,7 @@ struct PyramidDeformer::Impl {
   double fit_all(const double* X, double kappa, std::vector<Fit>* keep);
   std::vector<Fit> trial_fits;   // a line search's fits, swapped into `fits` when accepted
   std::vector<double> energies;  // fit_all's per-pyramid energies
+  std::vector<Eigen::VectorXd> pairs_s, pairs_y;  // L-BFGS's correction pairs (kHistory, 3 nf)
   void gradient(const double* X, Eigen::VectorXd* g) const;
   // Every pyramid's Hessian terms at the current fits; returns whether the positive
   // semidefinite version changed any (exact = false).
@@ -263,6 +264,8 @@ PyramidDeformer::Impl::Impl(const Vertices& vertices, const Faces& faces,
       fixed.reset();  // Newton's method alone
     }
     cols.resize(3 * nf);
+    pairs_s.assign(kHistory, Eigen::VectorXd(3 * nf));
+    pairs_y = pairs_s;
   }
   values.assign(static_cast<size_t>(colptr.back()), 0.0);
   fits.resize(static_cast<size_t>(np));
@@ -613,6 +616,16 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   Eigen::VectorXd g, d(3 * nf), rhs(3 * nf), r(3 * nf), z(3 * nf), p(3 * nf), Ap(3 * nf);
   Vertices trial;
   auto reported = std::chrono::steady_clock::now();
+  // progress(iterations, step / diagonal) at most every progress_seconds, or now if `force`.
+  auto report = [&](int iterations, double step_fraction, bool force) {
+    if (!options.progress) return;
+    const auto now = std::chrono::steady_clock::now();
+    if (force ||
+        std::chrono::duration<double>(now - reported).count() >= options.progress_seconds) {
+      reported = now;
+      options.progress(iterations, step_fraction);
+    }
+  };
   auto step_of = [&](double alpha) {
     double mx = 0;
     for (int J = 0; J < nf; ++J) mx = std::max(mx, alpha * d.segment<3>(3 * J).norm());
@@ -659,9 +672,10 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
                              : static_cast<int>(std::min<long long>(
                                    kQuasiMost, 1LL * kQuasiPerNewton * options.max_iterations));
   if (S.fixed) {
-    // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest),
-    // allocated once per call.
-    std::vector<Eigen::VectorXd> hs(kHistory, Eigen::VectorXd(3 * nf)), hy = hs;
+    // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest), kept
+    // by the deformer: a live update does not allocate them again.
+    std::vector<Eigen::VectorXd>& hs = S.pairs_s;
+    std::vector<Eigen::VectorXd>& hy = S.pairs_y;
     double hrho[kHistory], a_hist[kHistory];
     int pairs = 0, oldest = 0;
     auto slot = [&](int j) { return (oldest + j) % kHistory; };
@@ -722,13 +736,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         }
       }
       g.swap(gn);
-      if (options.progress) {
-        const auto now = std::chrono::steady_clock::now();
-        if (std::chrono::duration<double>(now - reported).count() >= options.progress_seconds) {
-          reported = now;
-          options.progress(0, diag_ > 0 ? step / diag_ : 0.0);
-        }
-      }
+      report(0, diag_ > 0 ? step / diag_ : 0.0, false);
       if (step <= kQuasiUntil * diag_) {
         exact = true;
         break;
@@ -827,14 +835,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     last_steps_.push_back(last_step_);
     last_energy_ = E;
     if (!std::isfinite(E)) throw std::runtime_error("pyramid deformer: the energy overflowed");
-    if (options.progress) {
-      const auto now = std::chrono::steady_clock::now();
-      if (done ||
-          std::chrono::duration<double>(now - reported).count() >= options.progress_seconds) {
-        reported = now;
-        options.progress(last_iterations_, last_step_);
-      }
-    }
+    report(last_iterations_, last_step_, done);
     if (done) {
       last_converged_ = true;
       break;
