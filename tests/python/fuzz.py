@@ -673,6 +673,34 @@ def case_threads(rng, v, f, hostile, perm, kind):
         md.set_num_threads(before)
 
 
+def pinned_parts(v, f, ctrl, diag):
+    """Whether every part (vertices joined by faces) holding a control has three non-collinear
+    controls in its faces. A control in no face holds nothing, and a part with fewer leaves the
+    turn about them free (a family of minima, docs/pyramid.md): no unique result to compare."""
+    part = np.arange(len(v))
+
+    def root(a):
+        while part[a] != a:
+            part[a] = part[part[a]]
+            a = part[a]
+        return a
+
+    for face in np.asarray(f).reshape(-1, 3):
+        for a in face[1:]:
+            part[root(a)] = root(face[0])
+    used = np.zeros(len(v), bool)
+    used[np.asarray(f).ravel()] = True
+    held = {}
+    for c in ctrl:
+        if used[c]:
+            held.setdefault(root(c), []).append(c)
+    for ids in held.values():
+        p = v[ids] - v[ids].mean(0)
+        if len(ids) < 3 or not np.linalg.svd(p, compute_uv=False)[1] > 1e-6 * diag:
+            return False
+    return bool(held)
+
+
 def case_pyramid(rng, v, f, hostile, perm, kind):
     """Controls: a few random vertices, or a random ball of them; targets: their rest places
     moved by a random similarity and noise. Every numeric argument of deform() is drawn, and a
@@ -723,9 +751,7 @@ def case_pyramid(rng, v, f, hostile, perm, kind):
     # Relabelling: when converged from the start deform() builds, and when the controls pin the
     # pose (one or two controls, or controls on a line, leave the turn about them free: a family
     # of minima, docs/pyramid.md). Converged means within ~tol^2 of the minimum.
-    p = v[ctrl] - v[ctrl].mean(0)
-    pinned = len(ctrl) >= 3 and np.linalg.svd(p, compute_uv=False)[1] > 1e-6 * diag
-    if not perm or not pinned or not d.last_converged or "initial" in kw:
+    if not perm or not pinned_parts(v, f, ctrl, diag) or not d.last_converged or "initial" in kw:
         return
     r = relabel_for(rng, v, f)
     d2 = md.PyramidDeformer(r.vertices, r.faces, r.vertex_ids(ctrl))
