@@ -663,90 +663,108 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     }
   }
   I.grad = std::make_unique<GradientOperator>(I.lrest, I.lfaces, options.area_weights);
-  // Rotation components: faces linked by dual edges or rotational pairs. Each needs a fixed
-  // face, a penalty face or a prescribed rotation to pin its global rotation.
-  int rcount = 0;
-  std::vector<int> rcomp;
-  {
-    DisjointSets sets(lm);
-    for (Eigen::Index e = 0; e < I.ldual.rows(); ++e) sets.unite(I.ldual(e, 0), I.ldual(e, 1));
-    for (const auto& lp : I.lpairs) sets.unite(lp[0], lp[1]);
-    rcomp.resize(lm);
-    std::vector<int> label(lm, -1);
-    for (int f = 0; f < lm; ++f) {
-      const int root = sets.find(f);
-      if (label[root] < 0) label[root] = rcount++;
-      rcomp[f] = label[root];
-    }
-  }
-  // Its root face: the one nearest the frame face if that is in it, else nearest the rest
-  // centroid of the parts it touches (choices by geometry, not by the numbering).
-  std::vector<int> rroot(rcount, -1);
-  {
-    std::vector<std::vector<int>> touches(rcount), rfaces(rcount);  // its parts, its faces
-    for (int f = 0; f < lm; ++f) {
-      touches[rcomp[f]].push_back(I.lface_part[f]);
-      rfaces[rcomp[f]].push_back(f);
-    }
-    for (std::vector<int>& t : touches) {
-      std::sort(t.begin(), t.end());
-      t.erase(std::unique(t.begin(), t.end()), t.end());
-    }
-    int frame_comp = -1;
-    const Vec3 frame_point =
-        I.frame < 0 ? Vec3::Zero()
-                    : centroid(vertices, faces(I.frame, 0), faces(I.frame, 1), faces(I.frame, 2));
-    if (I.frame >= 0) {
-      const int lf = I.multires
-                         ? nearest_face(I.lrest, I.lfaces, frame_point, lpart_faces[fpart[I.frame]])
-                     : I.whole ? I.frame
-                               : lface_of[I.frame];
-      frame_comp = rcomp[lf];
-    }
-    for (int k = 0; k < rcount; ++k) {
-      Vec3 point = frame_point;
-      if (k != frame_comp) {
-        std::vector<int> ids;
-        for (int c : touches[k])
-          ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
-        point = canonical_mean(vertices, ids);
+  // Rotation components: faces linked by dual edges or rotational pairs (when the pairs'
+  // rotations are given). Each needs a fixed face, a penalty face or a prescribed rotation to
+  // pin its global rotation.
+  auto rotation_solvers = [&](bool with_pairs) {
+    Impl::RotationSolvers out;
+    int rcount = 0;
+    std::vector<int> rcomp;
+    {
+      DisjointSets sets(lm);
+      for (Eigen::Index e = 0; e < I.ldual.rows(); ++e) sets.unite(I.ldual(e, 0), I.ldual(e, 1));
+      if (with_pairs) {
+        for (const auto& lp : I.lpairs) sets.unite(lp[0], lp[1]);
       }
-      rroot[k] = nearest_face(I.lrest, I.lfaces, point, rfaces[k]);
+      rcomp.resize(lm);
+      std::vector<int> label(lm, -1);
+      for (int f = 0; f < lm; ++f) {
+        const int root = sets.find(f);
+        if (label[root] < 0) label[root] = rcount++;
+        rcomp[f] = label[root];
+      }
     }
-  }
-  std::vector<char> rfrozen(rcount, 0), rheld(rcount, 0);
-  for (int f : I.lfixed_faces) rfrozen[rcomp[f]] = 1;
-  for (int f : I.lhandle_faces) rheld[rcomp[f]] = 1;
-  // Tree roots: the fixed faces, then the root of every rotation component without one.
-  auto tree_roots = [&](const std::vector<int>& fixed) {
-    std::vector<int> roots = fixed;
-    std::vector<char> has(rcount, 0);
-    for (int f : fixed) has[rcomp[f]] = 1;
+    out.components = rcount;
+    // Its root face: the one nearest the frame face if that is in it, else nearest the rest
+    // centroid of the parts it touches (choices by geometry, not by the numbering).
+    std::vector<int> rroot(rcount, -1);
+    {
+      std::vector<std::vector<int>> touches(rcount), rfaces(rcount);  // its parts, its faces
+      for (int f = 0; f < lm; ++f) {
+        touches[rcomp[f]].push_back(I.lface_part[f]);
+        rfaces[rcomp[f]].push_back(f);
+      }
+      for (std::vector<int>& t : touches) {
+        std::sort(t.begin(), t.end());
+        t.erase(std::unique(t.begin(), t.end()), t.end());
+      }
+      int frame_comp = -1;
+      const Vec3 frame_point =
+          I.frame < 0 ? Vec3::Zero()
+                      : centroid(vertices, faces(I.frame, 0), faces(I.frame, 1), faces(I.frame, 2));
+      if (I.frame >= 0) {
+        const int lf =
+            I.multires ? nearest_face(I.lrest, I.lfaces, frame_point, lpart_faces[fpart[I.frame]])
+            : I.whole  ? I.frame
+                       : lface_of[I.frame];
+        frame_comp = rcomp[lf];
+      }
+      for (int k = 0; k < rcount; ++k) {
+        Vec3 point = frame_point;
+        if (k != frame_comp) {
+          std::vector<int> ids;
+          for (int c : touches[k])
+            ids.insert(ids.end(), part_members[c].begin(), part_members[c].end());
+          point = canonical_mean(vertices, ids);
+        }
+        rroot[k] = nearest_face(I.lrest, I.lfaces, point, rfaces[k]);
+      }
+    }
+    std::vector<char> rfrozen(rcount, 0), rheld(rcount, 0);
+    for (int f : I.lfixed_faces) rfrozen[rcomp[f]] = 1;
+    for (int f : I.lhandle_faces) rheld[rcomp[f]] = 1;
+    // Tree roots: the fixed faces, then the root of every rotation component without one.
+    auto tree_roots = [&](const std::vector<int>& fixed) {
+      std::vector<int> roots = fixed;
+      std::vector<char> has(rcount, 0);
+      for (int f : fixed) has[rcomp[f]] = 1;
+      for (int k = 0; k < rcount; ++k) {
+        if (!has[k]) roots.push_back(rroot[k]);
+      }
+      return roots;
+    };
+    const std::vector<std::array<int, 2>> no_pairs;
+    const auto& pairs = with_pairs ? I.lpairs : no_pairs;
+    // The natural shape is solved with the frozen faces fixed, or else the root face.
+    std::vector<int> fixed_a = I.lfixed_faces;
     for (int k = 0; k < rcount; ++k) {
-      if (!has[k]) roots.push_back(rroot[k]);
+      if (!rfrozen[k]) fixed_a.push_back(rroot[k]);
     }
-    return roots;
-  };
-  // The natural shape is solved with the frozen faces fixed, or else the root face.
-  std::vector<int> fixed_a = I.lfixed_faces;
-  for (int k = 0; k < rcount; ++k) {
-    if (!rfrozen[k]) fixed_a.push_back(rroot[k]);
-  }
-  I.rot_a = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight, fixed_a,
+    out.a = std::make_unique<RotationSolver>(lm, I.ldual, pairs, options.joint_weight, fixed_a,
                                              tree_roots(fixed_a), std::vector<int>{}, 0.0,
                                              edge_cost, edge_weight);
-  I.lface_follow.assign(lm, 1);
-  if (!I.lhandle_faces.empty()) {
-    // A rotation component without frozen or handle faces follows its part's fitted rotation;
-    // in this solve its root is held (only to keep the matrix definite).
-    std::vector<int> fixed_b = I.lfixed_faces;
-    for (int k = 0; k < rcount; ++k) {
-      if (!rfrozen[k] && !rheld[k]) fixed_b.push_back(rroot[k]);
-    }
-    for (int f = 0; f < lm; ++f) I.lface_follow[f] = !rfrozen[rcomp[f]] && !rheld[rcomp[f]];
-    I.rot_b = std::make_unique<RotationSolver>(lm, I.ldual, I.lpairs, options.joint_weight, fixed_b,
+    out.follow.assign(lm, 1);
+    if (!I.lhandle_faces.empty()) {
+      // A rotation component without frozen or handle faces follows its part's fitted
+      // rotation; in this solve its root is held (only to keep the matrix definite).
+      std::vector<int> fixed_b = I.lfixed_faces;
+      for (int k = 0; k < rcount; ++k) {
+        if (!rfrozen[k] && !rheld[k]) fixed_b.push_back(rroot[k]);
+      }
+      for (int f = 0; f < lm; ++f) out.follow[f] = !rfrozen[rcomp[f]] && !rheld[rcomp[f]];
+      out.b = std::make_unique<RotationSolver>(lm, I.ldual, pairs, options.joint_weight, fixed_b,
                                                tree_roots(fixed_b), I.lhandle_faces,
                                                options.rotation_weight, edge_cost, edge_weight);
+    }
+    return out;
+  };
+  I.rot = rotation_solvers(true);
+  // Without the pairs' rotations (deform(rotations=None)) the joints are free: a pair joining
+  // two components must not join their gauges, or one of them would have no root and its
+  // rotation would depend on the iteration (on the numbering). Those get their own solvers.
+  if (!I.lpairs.empty()) {
+    Impl::RotationSolvers split = rotation_solvers(false);
+    if (split.components != I.rot.components) I.rot_free = std::move(split);
   }
   // Position penalty relative to the mean diagonal of the gradient term; with
   // multiresolution, dense rows are scaled by coarse/dense vertex counts so the balance
@@ -787,6 +805,9 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
   blend(w, &Q, &S);
   stats.ms_blend = ms_since(t0);
   const Matrix3Array* G = rotations && r > 0 ? rotations : nullptr;
+  const RotationSolvers& rs = !G && rot_free.a ? rot_free : rot;
+  const RotationSolver* rot_a = rs.a.get();
+  const RotationSolver* rot_b = rs.b.get();
   const int lm = static_cast<int>(lfaces.rows());
 
   // Step 1 and 2 without handles: the natural blended shape, up to a rigid motion.
@@ -910,7 +931,7 @@ Vertices PoseSpaceDeformer::Impl::run(const std::vector<Vertices>& hp,
     }
   }
   for (int i = 0; i < lm; ++i) {
-    if (lface_follow[i]) R[i] = Gpart[lface_part[i]] * R0[i];
+    if (rs.follow[i]) R[i] = Gpart[lface_part[i]] * R0[i];
   }
   stats.ms_rotations += ms_since(t0);
 

@@ -274,10 +274,7 @@ struct PoseSpaceDeformer::Impl {
   std::vector<int> lvertices;   // dense id of each level vertex
   std::vector<int> level_of;    // dense vertex -> level vertex, or -1
   std::vector<int> lface_part;  // level face -> part
-  // Level faces whose rotation is the natural shape's turned by their part's fitted rotation
-  // (rotation components of the final step-1 solve that nothing else holds).
-  std::vector<char> lface_follow;
-  std::vector<int> lvpart;  // level vertex -> part
+  std::vector<int> lvpart;      // level vertex -> part
   IndexPairs ldual;
   RowMatrix omega;    // (E, 3p) relative rotation logs
   RowMatrix stretch;  // (lm, 6p)
@@ -285,7 +282,16 @@ struct PoseSpaceDeformer::Impl {
   std::vector<int> lhandle_faces, lhandle_owner;
   std::vector<int> lfixed_faces, lfixed_vertices;
   std::unique_ptr<GradientOperator> grad;
-  std::unique_ptr<RotationSolver> rot_a, rot_b;
+  // Step 1's rotation solvers: `a` for the natural shape, `b` (when handles hold faces) with
+  // the handles' rotations; `follow`: level faces whose rotation is the natural shape's turned
+  // by their part's fitted rotation (rotation components of `b` that nothing else holds).
+  struct RotationSolvers {
+    int components = 0;  // rotation components (gauges)
+    std::unique_ptr<RotationSolver> a, b;
+    std::vector<char> follow;
+  };
+  RotationSolvers rot;       // the rotational pairs link their faces
+  RotationSolvers rot_free;  // without them (rotations not given), where that splits a gauge
   std::unique_ptr<PositionSolver> pos_a, pos_b;
   mutable std::unique_ptr<PositionSolver> pos_b_frame;
   std::vector<PositionSolver::Row> handle_rows, frame_rows;

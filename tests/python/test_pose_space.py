@@ -357,6 +357,45 @@ def test_parts_at_an_example_are_that_example_and_relabelling_permutes(scene):
     np.testing.assert_array_equal(X2[vinv[2 * n :]], V[2 * n :])
 
 
+def test_a_free_joint_changes_nothing():
+    """Two bars end to end sharing one corner vertex (one part, two rotation components) and a
+    rotational pair joining them. With rotations=None the joint is free: the result is the one
+    without the pair, and a relabelling permutes it (a free pair joining the two components'
+    gauges would leave one without a root face, its turn then set by the iteration)."""
+    v, f = bar()
+    n, m = len(v), len(f)
+    shift = v[4 * 8 + 2] - v[0]  # B's corner 0 on A's far corner (0.5, 0.5)
+    V = np.vstack([v, v[1:] + shift])
+    ids = np.concatenate([[4 * 8 + 2], n + np.arange(n - 1)])  # B's vertex i -> its row in V
+    F = np.vstack([f, ids[f]])
+    L = 16.0
+    EX = np.stack([bent(V, 1.0, L), bent(V, -0.8, L, (0, 2)), bulged(bent(V, 0.6, L), 0.4, L)])
+    H = [rings(0, 1), rings(4, 4), ids[rings(4, 4)], ids[rings(7, 8)]]
+    pair = [(5, m + m - 20)]
+    kw = dict(rotation_iterations=500, rotation_tolerance=1e-12, handle_rotations=False)
+    d = md.PoseSpaceDeformer(V, F, EX, H, rotational=pair, **kw)
+    plain = md.PoseSpaceDeformer(V, F, EX, H, **kw)
+    R, t = rotation([1, -2, 1], 2.5), np.array([3.0, -1.0, 2.0])
+    hp = [p @ R.T + t for p in in_between(EX, H, seed=3)]
+    X = d.deform(hp)
+    assert np.abs(X - plain.deform(hp)).max() < 1e-9 * diag(V)
+    rng = np.random.default_rng(8)
+    vp, fp = rng.permutation(len(V)), rng.permutation(len(F))  # new -> old
+    vinv, finv = np.argsort(vp), np.argsort(fp)
+    d2 = md.PoseSpaceDeformer(
+        V[vp],
+        vinv[F[fp]],
+        EX[:, vp],
+        [vinv[h] for h in H],
+        rotational=[(finv[a], finv[b]) for a, b in pair],
+        **kw,
+    )
+    assert np.abs(d2.deform(hp)[vinv] - X).max() < 1e-9 * diag(V)
+    # Given, the joint's rotation links the bars.
+    G = rotation([0, 1, 1], 0.5)[None]
+    assert np.abs(d.deform(hp, G) - X).max() > 1e-3 * diag(V)
+
+
 def test_relabelling_a_symmetric_tube_keeps_the_root_face():
     """A round tube's centre is equally far from a whole ring of faces, so the natural shape's
     root face is decided by the tie-break; with inconsistent examples (smooth random fields)
