@@ -629,12 +629,11 @@ PoseSpaceDeformer::PoseSpaceDeformer(const Vertices& vertices, const Faces& face
     for (int j = 0; j < I.h; ++j) {
       for (int v : handles[j]) {
         if (level_of[v] >= 0 && lowner[level_of[v]] < 0) lowner[level_of[v]] = j;
-        if (I.multires) {
-          int best = -1;
-          for (int t = I.tr_ptr[v]; t < I.tr_ptr[v + 1]; ++t) {
-            if (best < 0 || I.tr_w[t] > I.tr_w[best]) best = t;
-          }
-          if (best >= 0 && lowner[I.tr_idx[best]] < 0) lowner[I.tr_idx[best]] = j;
+        // The strongest coarse neighbour: the transfer weights come best first, weights tied
+        // within round-off ordered by the coarse vertex, not by which round-off is larger.
+        if (I.multires && I.tr_ptr[v + 1] > I.tr_ptr[v]) {
+          const int best = I.tr_idx[I.tr_ptr[v]];
+          if (lowner[best] < 0) lowner[best] = j;
         }
       }
     }
