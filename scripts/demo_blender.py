@@ -513,9 +513,10 @@ def build_pyramid():
 # Methods shown beside Laplacian Deform: those that carry an anchor's turns past half a turn
 # (Edge-based, Pyramid and Pose space join once their solves start from the unwrapped turns).
 def _edge_twist_settings(obj):
-    # the edge method keeps a twist only where the material resists unwinding (docs/edge.md,
-    # twists past half a turn): a stiff stretch
-    obj.material_deform.edge.stretch = 1.0
+    # the edge method keeps a twist only on slender parts at a moderate stretch (docs/edge.md,
+    # twists past half a turn): this tube (30 radii long) holds 540 degrees at stretch 0.3,
+    # converged, and unwinds a whole turn at 1
+    obj.material_deform.edge.stretch = 0.3
 
 
 def _pose_space_twist_example(obj):
@@ -539,7 +540,7 @@ TWIST_METHODS = (
     ("PYRAMID", "Pyramid (unwinds)", None),
 )
 TWIST_DEGREES, TWIST_FRAME = 540, 19  # keyed from 0 at frame 1, linearly: 30 degrees a frame
-TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.3, 61, 24
+TWIST_LENGTH, TWIST_RADIUS, TWIST_RINGS, TWIST_SIDES = 5.0, 0.15, 61, 24
 TWIST_SPACING = 2.0  # between the columns' axes
 
 

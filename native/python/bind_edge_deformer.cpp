@@ -45,6 +45,8 @@ void bind_edge_deformer(py::module_& m) {
           py::arg("rotation_vectors") = py::none())
       .def_property_readonly("last_iterations", &EdgeDeformer::last_iterations)
       .def_property_readonly("last_move", &EdgeDeformer::last_move)
+      .def_property_readonly("last_error", &EdgeDeformer::last_error)
+      .def_property_readonly("last_converged", &EdgeDeformer::last_converged)
       .def_property_readonly("factorizations", &EdgeDeformer::factorizations)
       .def_property_readonly("edges", &EdgeDeformer::edges)
       .def_property_readonly("opposite", &EdgeDeformer::opposite)

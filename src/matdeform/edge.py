@@ -116,8 +116,10 @@ class EdgeDeformer:
         constrained_positions : (k,3) positions of the constrained vertices, in the order given
             to the constructor (mesh length unit).
         iterations : int in [1, 2**31 - 1], the iteration budget.
-        tol : float >= 0. Stop early when the largest vertex move of an iteration is below
-            tol x the rest bounding-box diagonal; 0 runs exactly ``iterations``.
+        tol : float >= 0. Stop early once the estimated distance to the fixed point
+            (``last_error``: the last move times rho / (1 - rho), rho the slowest contraction
+            of moves over the last 4 iterations) is at most tol x the rest bounding-box
+            diagonal; 0 runs exactly ``iterations``.
         p_stretch, p_bend : floats in [0,1] (paper Eq. 15): how far each iteration pulls the
             edges towards their rest length / rest bending. 1 is the full material, 0 leaves the
             term where the previous iterate has it. Changing them needs no refactorisation.
@@ -144,7 +146,9 @@ class EdgeDeformer:
             ``constrained_positions`` within ``ROTATION_VECTOR_TOLERANCE`` (1e-4 rad), for
             anchors with such a fit (3+ vertices not in a line); else ValueError.
 
-        ``last_iterations`` and ``last_move`` report the iterations run and the last move.
+        ``last_iterations``, ``last_move``, ``last_error`` and ``last_converged`` report the
+        iterations run, the last move, the estimated distance to the fixed point and whether
+        it met ``tol``.
         Positions beyond 1e50 rest diagonals of the rest mesh raise ValueError; a result that
         would leave that range (gravity far too strong) raises RuntimeError. Either way the call
         changes nothing.
@@ -180,6 +184,19 @@ class EdgeDeformer:
     def last_move(self) -> float:
         """Largest vertex move of the last iteration of the last ``solve`` / bbox diagonal."""
         return self._core.last_move
+
+    @property
+    def last_error(self) -> float:
+        """The last ``solve``'s estimated distance to the fixed point / bbox diagonal: the last
+        move times rho / (1 - rho), rho the slowest contraction of successive moves over the
+        last 4 iterations; infinity while the moves do not contract (fewer than 6 iterations,
+        a two-cycle)."""
+        return self._core.last_error
+
+    @property
+    def last_converged(self) -> bool:
+        """Whether the last ``solve`` stopped because ``last_error`` met ``tol``."""
+        return self._core.last_converged
 
     @property
     def factorizations(self) -> int:

@@ -5,9 +5,10 @@ tube's axis, twists linearly along its length: the ring at height x turns by the
 rings' turns are measured from the output positions and unwrapped along the tube from the fixed
 bottom ring, so a whole number of turns shows.
 
-The tube is stiff in stretch (cloth, stretch 1) and of radius 0.3: under a twist the edge
-energy shrinks a tube's waist, and a soft or thick one has no twisted fixed point far past half
-a turn (docs/edge.md, "Twists past half a turn"), whatever the start.
+The tube is of radius 0.3 and stretch 0.3: under a twist the edge energy shrinks a tube's
+waist, and a soft or thick one has no twisted fixed point far past half a turn, nor has this one
+at cloth stretch (1) past about 600 degrees (docs/edge.md, "Twists past half a turn"), whatever
+the start.
 """
 
 import edge_reference as ref
@@ -20,7 +21,7 @@ from matdeform import shapes
 
 L, RADIUS, N_AROUND, N_ALONG = 10.0, 0.3, 16, 60
 MIDDLE = N_ALONG // 2
-STRETCH = 1.0
+STRETCH = 0.3
 
 
 @pytest.fixture(scope="module")
@@ -49,6 +50,28 @@ def turns_of(v, x):
     return ring_turns(v, x, N_AROUND, N_ALONG)
 
 
+def test_at_cloth_stretch_the_twist_unwinds_past_600_degrees(tube):
+    """The same tube at stretch 1, iterated to tol 1e-8 (the estimated distance to the fixed
+    point): 540 degrees holds, 720 ends one whole turn less twisted (the middle ring at 180
+    instead of 360 degrees: no fixed point twisted by 720 there; docs/edge.md)."""
+    v, f, con, k_lo, _ = tube
+    d = md.EdgeDeformer(v, f, con, stretch=1.0)
+    for deg, holds in ((540, True), (720, False)):
+        theta = np.radians(deg)
+        x = d.solve(
+            targets(v, con, k_lo, theta),
+            iterations=30000,
+            tol=1e-8,
+            rotation_vectors=vectors(theta),
+        )
+        assert d.last_converged
+        middle = turns_of(v, x)[MIDDLE]
+        if holds:
+            assert abs(middle - theta / 2) <= 1e-6, np.degrees(middle)
+        else:
+            assert abs(middle - (theta / 2 - np.pi)) <= 1e-3, np.degrees(middle)
+
+
 def test_anchors_are_the_caps(tube):
     v, f, con, k_lo, d = tube
     assert d.num_anchors == 2
@@ -63,17 +86,17 @@ def test_twist_0_to_720_is_linear_along_the_tube_without_a_jump(tube):
     mids = []
     for theta in thetas:
         x = d.solve(targets(v, con, k_lo, theta), iterations=2000, rotation_vectors=vectors(theta))
-        assert d.last_iterations < 2000  # converged to tol
+        assert d.last_converged and d.last_iterations < 2000  # within tol of the fixed point
         turns = turns_of(v, x)
         # The middle ring turns by exactly half (the tube is symmetric end for end; measured
         # 1e-12 rad).
         assert abs(turns[MIDDLE] - theta / 2) <= 1e-6, np.degrees(turns[MIDDLE])
-        # Every ring within 2 % of theta of the linear law (measured 1.72 % at 720 degrees,
-        # largest next to the caps, where the pinned rings keep their radius while the middle
-        # narrows to 0.79 of it); the middle half within 0.5 % (measured 0.32 %).
+        # Every ring within 2.5 % of theta of the linear law (measured 1.8 % at 30 degrees to
+        # 2.4 % at 720, largest next to the caps, where the pinned rings keep their radius while
+        # the middle narrows); the middle half within 1.2 % (measured 0.9-1.1 %).
         dev = np.abs(turns - theta * law)
-        assert dev.max() <= 0.02 * theta + 1e-9, (np.degrees(theta), dev.max() / theta)
-        assert dev[15:46].max() <= 0.005 * theta + 1e-9, (np.degrees(theta), "middle half")
+        assert dev.max() <= 0.025 * theta + 1e-9, (np.degrees(theta), dev.max() / theta)
+        assert dev[15:46].max() <= 0.012 * theta + 1e-9, (np.degrees(theta), "middle half")
         # Monotone along the tube: no ring turned back past its neighbour.
         if theta > 0:
             assert np.diff(turns).min() > 0

@@ -123,9 +123,10 @@ def test_solve_arguments_and_failed_calls_change_nothing(sheet):
             d.solve(**args)
         assert d.last_iterations == 3
     move = d.last_move
-    # the largest count passes validation (and tol stops it at once)
+    # the largest count passes validation (and tol stops it as soon as the moves give a rate,
+    # after at most 6 iterations, or at a fixed point to round-off)
     d.solve(pos, iterations=2**31 - 1, tol=1e300)
-    assert d.last_iterations == 1
+    assert 1 <= d.last_iterations <= 6 and d.last_converged
     d.solve(pos, iterations=3, tol=0)
     # gravity far too strong for the stiffness: the iterate leaves the representable range
     with pytest.raises(RuntimeError, match="left the range the solver represents.*weaken gravity"):

@@ -142,13 +142,21 @@ class Method:
 
 def convergence_status(state: dict, steps: str, hint: str) -> tuple[bool, str] | None:
     """:meth:`Method.status` of an iterative method whose state holds "spent" (steps of the
-    pose), "move" (last move, fraction of the diagonal) and "converged"."""
+    pose), "move" (last move, fraction of the diagonal) and "converged", and optionally "error"
+    (the estimated distance to the solution, fraction of the diagonal; infinite while unknown)."""
     if "converged" not in state:
         return None
-    n, move = state["spent"], state["move"]
+    n = state["spent"]
+    error = state.get("error")
+    if error is None:
+        how = f"last move {state['move']:.1e} of the diagonal"
+    elif np.isfinite(error):
+        how = f"estimated distance to the solution {error:.1e} of the diagonal"
+    else:
+        how = f"the moves are not shrinking yet, last move {state['move']:.1e} of the diagonal"
     if state["converged"]:
-        return True, f"Converged: {n} {steps}, last move {move:.1e} of the diagonal"
-    return False, f"Not converged after {n} {steps} (last move {move:.1e} of the diagonal): {hint}"
+        return True, f"Converged: {n} {steps}, {how}"
+    return False, f"Not converged after {n} {steps} ({how}): {hint}"
 
 
 _methods: dict[str, Method] = {}

@@ -151,8 +151,9 @@ class EdgeSettings(bpy.types.PropertyGroup):
     )
     tolerance: FloatProperty(
         name="Tolerance",
-        description="Converged when the largest vertex move of an iteration is below this "
-        "fraction of the mesh's bounding-box diagonal",
+        description="Converged when the estimated distance to the solution (the last move "
+        "scaled by how slowly the moves shrink) is below this fraction of the mesh's "
+        "bounding-box diagonal",
         default=1e-5,
         min=0.0,
         soft_max=1e-2,
@@ -429,8 +430,8 @@ class EdgeMethod(Method):
         # the tolerance (a two-cycle, docs/edge.md) stops the settling timer at Settle Max
         spent = (state.get("spent", 0) if state.get("pose_key") == key else 0) + d.last_iterations
         state["pose_key"], state["spent"] = key, spent
-        converged = d.last_move < p["tol"] or p["tol"] == 0.0
-        state.update(move=d.last_move, converged=converged)
+        converged = d.last_converged or p["tol"] == 0.0
+        state.update(move=d.last_move, error=d.last_error, converged=converged)
         done = budget is None or converged or spent >= p["settle_iterations"]
         return Result(x, done)
 

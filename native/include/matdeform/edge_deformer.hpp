@@ -24,10 +24,13 @@ struct EdgeDeformerOptions {
 };
 
 struct EdgeSolveOptions {
-  int iterations = 15;     // >= 1, at most this many E-M iterations
-  double tol = 1e-5;       // >= 0; stop when the largest vertex move <= tol * bbox diagonal
-  double p_stretch = 1.0;  // p_rho in [0,1] (Eq. 15)
-  double p_bend = 1.0;     // p_sigma in [0,1] (Eq. 15)
+  int iterations = 15;  // >= 1, at most this many E-M iterations
+  // >= 0; stop once the estimated distance to the fixed point, move rho / (1 - rho) with move
+  // the largest vertex move of an iteration and rho the slowest contraction of moves over the
+  // last few iterations, is <= tol * bbox diagonal (0: run every iteration)
+  double tol = 1e-5;
+  double p_stretch = 1.0;                             // p_rho in [0,1] (Eq. 15)
+  double p_bend = 1.0;                                // p_sigma in [0,1] (Eq. 15)
   Eigen::Vector3d gravity = Eigen::Vector3d::Zero();  // g, pointing the way things fall (Eq. 8)
   // omega in (0,1]: each iteration moves the free vertices by omega times the E-M step (1: the
   // paper). Same fixed points; below 1 it damps the two-cycles the plain iteration can fall into.
@@ -75,6 +78,10 @@ class EdgeDeformer {
 
   int last_iterations() const { return last_iterations_; }
   double last_move() const { return last_move_; }  // largest move of the last iteration / diag
+  // The last solve's estimated distance to the fixed point / diag (infinity while the moves do
+  // not contract), and whether it met tol.
+  double last_error() const { return last_error_; }
+  bool last_converged() const { return last_converged_; }
   int factorizations() const { return factorizations_; }  // done by this object
   // Sparse factorisations done in this process by any solver, so that tests can prove that
   // solve() never refactors.
@@ -105,6 +112,8 @@ class EdgeDeformer {
   int factorizations_ = 0;
   int last_iterations_ = 0;
   double last_move_ = 0.0;
+  double last_error_ = 0.0;
+  bool last_converged_ = false;
 };
 
 }  // namespace matdeform
