@@ -77,6 +77,15 @@ def affine_inverse(m) -> np.ndarray:
     return out
 
 
+def singular(m) -> np.ndarray:
+    """Indices of the (k,4,4) transforms whose 3x3 part has no inverse (|det| <= 1e-12 of its
+    largest entry cubed: an Empty scaled to zero). No LAPACK (see :func:`affine_inverse`)."""
+    a = np.asarray(m, dtype=np.float64).reshape(-1, 4, 4)[:, :3, :3]
+    det = np.einsum("kj,kj->k", a[:, 0, :], np.cross(a[:, 1, :], a[:, 2, :]))
+    scale = np.abs(a).max(axis=(-2, -1)) ** 3
+    return np.flatnonzero(~(np.abs(det) > 1e-12 * scale))
+
+
 def rigid_fit(rest, posed) -> np.ndarray:
     """(4,4) rotation + translation that best maps points ``rest`` (n,3) onto ``posed`` (n,3)
     in the least-squares sense (Kabsch; no reflection)."""

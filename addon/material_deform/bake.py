@@ -38,7 +38,7 @@ def _solved_frames(obj, scene, frames, progress, unsettled=None):
     a chunk of them gives the same positions as the whole range. Never a non-finite frame
     (BindError). The scene's frame is restored afterwards. ``unsettled``: a list that gets
     (frame, status text) of every frame an iterative method wrote without converging (it ran
-    out of Max Sweeps / Settle Max)."""
+    out of Max Iterations / Settle Max)."""
     progress = progress or (lambda _f, _t: None)
     entry = session.entry_for(obj, scene)
     old = scene.frame_current

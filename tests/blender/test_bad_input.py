@@ -2,6 +2,7 @@
 
 import bpy
 import numpy as np
+import pytest
 from helpers import (
     add_anchor,
     expect_error,
@@ -52,9 +53,10 @@ def test_add_anchor_without_selection():
     assert len(obj.vertex_groups) == 0 and len(obj.material_deform.anchors) == 0
 
 
-def _bound_and_moved():
+def _bound_and_moved(method="MATERIAL"):
     """A bound tube whose top anchor moved once: (object, top anchor, output after the move)."""
     obj = tube()
+    obj.material_deform.method = method
     top, _ = two_end_anchors(obj)
     assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
     top.empty.location.x += 0.5
@@ -74,12 +76,25 @@ def test_deleted_empty_before_and_after_bind():
     assert snapshot(obj) == before
 
 
-def test_empty_scaled_to_zero_after_bind():
-    obj, top, result = _bound_and_moved()
+@pytest.mark.parametrize("method", ["MATERIAL", "EDGE", "POSE_SPACE", "PYRAMID"])
+def test_empty_scaled_to_zero_after_bind(method):
+    """Refused alike by every method (the positions-only ones would collapse the anchor faces
+    to a point), naming the Empty; nothing written."""
+    if method == "POSE_SPACE":
+        from test_pose_space import example_bar
+
+        obj, top, _ = example_bar()
+        bpy.context.view_layer.objects.active = obj
+        assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+        top.empty.location.x += 0.2
+        update()
+        result = output(obj).copy()
+    else:
+        obj, top, result = _bound_and_moved(method)
     top.empty.scale = (1.0, 0.0, 1.0)
     update()
     np.testing.assert_array_equal(output(obj), result)  # the live update wrote nothing
-    expect_error(bpy.ops.object.material_deform_update, "Cannot pose")
+    expect_error(bpy.ops.object.material_deform_update, f"Empty '{top.empty.name}'.*scaled to zero")
     np.testing.assert_array_equal(output(obj), result)
 
 
@@ -108,6 +123,7 @@ def test_empty_unlinked_after_bind_stops_live_updates_until_linked_again():
     update()
     np.testing.assert_array_equal(output(obj), result)  # nothing written
     assert top.name in session.stale_reason(obj)
+    assert "not in the scene" in session.stale_reason(obj)  # what Update and Bind say too
     bpy.context.scene.collection.objects.link(empty)
     empty.location.x += 0.5
     update()

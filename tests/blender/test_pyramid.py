@@ -298,12 +298,30 @@ def test_nan_empty_is_reported_as_an_error_and_the_key_keeps_its_pose():
     assert np.all(np.isfinite(output(obj)))
 
 
-def test_a_flattened_empty_gives_a_finite_pose():
+def test_a_flattened_empty_is_refused_and_the_key_keeps_its_pose():
     obj, top, _ = pyramid_bar()
-    top.empty.scale = (0.0, 1.0, 1.0)  # the top anchor's vertices collapse onto a plane
+    before = output(obj).copy()
+    top.empty.scale = (0.0, 1.0, 1.0)  # the top anchor's vertices would collapse onto a plane
+    update()
+    expect_error(bpy.ops.object.material_deform_settle, "scaled to zero")
+    assert output(obj).tobytes() == before.tobytes()
+
+
+def test_live_updates_recover_from_an_extreme_pose_by_themselves():
+    """An Empty scaled by 1e30 and back: the live update after it warm-started from the 1e30
+    result and was refused as diverged, and with nothing else changing the key stayed at
+    5e29 until Update. A diverged warm start is retried from the pose's own start at once."""
+    obj, top, _ = pyramid_bar()
+    top.empty.rotation_euler.z += math.radians(45)
     update()
     assert bpy.ops.object.material_deform_settle() == {"FINISHED"}
-    assert np.all(np.isfinite(output(obj)))
+    posed = output(obj).copy()
+    top.empty.scale = (1e30, 1e30, 1e30)
+    update()
+    assert np.abs(output(obj)).max() > 1e20
+    top.empty.scale = (1.0, 1.0, 1.0)
+    update()  # one live update, nothing after it
+    assert np.abs(output(obj) - posed).max() < 1e-4 * diagonal(posed)
 
 
 def test_panel_draws_the_pyramid_settings_below_the_common_controls():

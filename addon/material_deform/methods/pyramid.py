@@ -198,10 +198,11 @@ class PyramidMethod(Method):
         else:
             it, x0 = min(budget, max(most - spent, 1)), state.get("x")
         d = solver.deformer
-        vectors = (
-            None if rotations is None or x0 is not None else np.asarray(rotations)[solver.owner]
-        )
-        try:
+
+        def attempt(x0):
+            vectors = (
+                None if rotations is None or x0 is not None else np.asarray(rotations)[solver.owner]
+            )
             try:
                 x = d.deform(
                     targets,
@@ -234,6 +235,18 @@ class PyramidMethod(Method):
                 solver.diagonal * _stretch_of(solver, targets) + _extent(targets)
             ):
                 raise RuntimeError("the iteration diverged (the mesh grew 3x beyond its pose)")
+            return x
+
+        try:
+            try:
+                x = attempt(x0)
+            except RuntimeError:
+                # A warm start can be the cause (the last result of an extreme pose, e.g. an
+                # Empty scaled by 1e30 and back): this pose from its own start, at once, since
+                # no further update may come to retry it.
+                if x0 is None:
+                    raise
+                x = attempt(None)
         except RuntimeError as exc:  # diverged: keep the last good result, start over next time
             for k in ("x", "pose", "spent", "converged"):
                 state.pop(k, None)

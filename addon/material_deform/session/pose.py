@@ -130,10 +130,15 @@ def _anchor_empties(obj, scene, members=None):
     s = settings(obj)
     out = []
     for anc in s.anchors:
-        if anc.empty is None or not bridge.object_in_scene(anc.empty, scene, members):
+        if anc.empty is None:
             raise BindError(
                 f"Anchor '{anc.name}' has no Empty (removed or never assigned): assign one in "
                 "the Anchors list, then Bind"
+            )
+        if not bridge.object_in_scene(anc.empty, scene, members):
+            raise BindError(
+                f"Anchor '{anc.name}': Empty '{anc.empty.name}' is not in the scene: link it "
+                "back, or assign another and Bind"
             )
         out.append(anc)
     return out
@@ -214,6 +219,16 @@ def transforms_now(
     ):
         return None
     try:
-        return entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m, m_obj_bind)
+        t = entry.extra.setdefault("pose", am.PoseTransforms())(m_obj, now, bind_m, m_obj_bind)
     except ValueError as exc:  # e.g. the object scaled to zero
         raise BindError(f"Cannot pose '{obj.name}': {exc}") from None
+    # An Empty scaled to zero would collapse its anchor faces to a point: refused for every
+    # method alike (the material-aware core needs det > 0 anyway).
+    flat = am.singular(t)
+    if len(flat):
+        a = ancs[int(flat[0])]
+        raise BindError(
+            f"Cannot pose '{obj.name}': Empty '{a.empty.name}' of anchor '{a.name}' is scaled "
+            "to zero along some axis; give it a non-zero scale"
+        )
+    return t
