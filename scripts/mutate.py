@@ -385,13 +385,6 @@ MUTATIONS = [
         "error = move;",
         "stopping rule: a small last move taken for a small distance to the fixed point",
     ),
-    M(
-        "E9",
-        "native/src/edge_deformer.cpp",
-        "const double rho = *std::max_element(ratios, ratios + kRateWindow);",
-        "const double rho = ratios[(num_ratios - 1) % kRateWindow];",
-        "stopping rule: the last ratio of moves alone taken for the rate",
-    ),
     # Pose-space manipulation (native/src/pose_space_*.cpp).
     M(
         "S1",
