@@ -406,7 +406,12 @@ def case_edge(rng, v, f, hostile, perm, kind):
         opts2["initial"] = r.per_vertex(opts["initial"])
     X2 = md.EdgeDeformer(r.vertices, r.faces, r.vertex_ids(c), **kw2).solve(pos, **opts2)
     size = max(diag, float(np.linalg.norm(np.ptp(X, axis=0))), 1e-300)
-    close("EdgeDeformer.solve", r.to_original(X2), X, EDGE_RELABEL_TOL * size)
+    # Round-off grows with the condition number, about bend / stretch (with their responses):
+    # below the 1e-6 the tolerance was measured at, it grows in proportion (seed 36 case 2699:
+    # an effective ratio 2.8e-7, 1.3e-8 of the result apart).
+    ratio = (kw["stretch"] * opts.get("p_stretch", 1.0)) / (kw["bend"] * opts.get("p_bend", 1.0))
+    loose = 1e-6 / ratio if 0.0 < ratio < 1e-6 else 1.0
+    close("EdgeDeformer.solve", r.to_original(X2), X, EDGE_RELABEL_TOL * loose * size)
 
 
 def case_harmonic_weights(rng, v, f, hostile, perm, kind):
