@@ -381,7 +381,7 @@ MUTATIONS = [
     M(
         "E8",
         "native/src/edge_deformer.cpp",
-        "error = rho < 1.0 ? move * rho / (1.0 - rho) : std::numeric_limits<double>::infinity();",
+        "if (rho < 1.0) error = move * rho / (1.0 - rho);",
         "error = move;",
         "stopping rule: a small last move taken for a small distance to the fixed point",
     ),

@@ -935,7 +935,7 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
   constexpr int kRateWindow = 4;
   double ratios[kRateWindow] = {};
   int num_ratios = 0;
-  double previous = 0.0, error = std::numeric_limits<double>::infinity();
+  double previous = 0.0, error = 0.0;
   bool converged = false;
   while (it < options.iterations) {
     const bool carry = carried && it == 0;
@@ -992,11 +992,12 @@ Vertices EdgeDeformer::solve(const Vertices& constrained_positions, const EdgeSo
     ++it;
     if (it >= 3 && previous > 0.0) ratios[num_ratios++ % kRateWindow] = move / previous;
     previous = move;
+    error = std::numeric_limits<double>::infinity();  // unknown until the rate is
     if (move <= kRoundOff * diag_) {
       error = move;  // a fixed point to round-off
     } else if (num_ratios >= kRateWindow) {
       const double rho = *std::max_element(ratios, ratios + kRateWindow);
-      error = rho < 1.0 ? move * rho / (1.0 - rho) : std::numeric_limits<double>::infinity();
+      if (rho < 1.0) error = move * rho / (1.0 - rho);
     }
     if (stop > 0.0 && error <= stop) {
       converged = true;
