@@ -11,8 +11,18 @@
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 WORK="$(mktemp -d "${TMPDIR:-/tmp}/md-fresh.XXXXXX")"
-cleanup() { [[ "${MD_FRESH_KEEP:-0}" == 1 ]] || rm -rf "$WORK"; }
+REMOVED=0
+cleanup() {
+  [[ "${MD_FRESH_KEEP:-0}" == 1 ]] || rm -rf "$WORK"
+  # Stopped before the test command put Debian's packages back (interrupted, or the demo
+  # failed): put them back here, so that the machine's Blender keeps its numpy and pytest.
+  if [[ $REMOVED == 1 ]] && ! dpkg-query -W -f='${Status}' python3-numpy 2>/dev/null \
+    | grep -q "install ok installed"; then
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq python3-pytest python3-numpy >/dev/null || true
+  fi
+}
 trap cleanup EXIT
+trap 'exit 130' INT TERM
 git clone -q "$ROOT" "$WORK/main"
 cd "$WORK/main"
 echo "[fresh] $(git log -1 --format='%h %s') in $WORK/main"
@@ -20,6 +30,7 @@ echo "[fresh] $(git log -1 --format='%h %s') in $WORK/main"
 if [[ "${MD_FRESH_REMOVE:-1}" == 1 ]]; then
   if [[ "$(id -u)" -eq 0 ]]; then
     echo "[fresh] apt-get remove python3-pytest python3-numpy"
+    REMOVED=1
     DEBIAN_FRONTEND=noninteractive apt-get remove -y -qq python3-pytest python3-numpy >/dev/null
     if command -v blender >/dev/null \
       && blender -b --factory-startup --python-exit-code 1 --python-expr "import pytest" \
