@@ -292,6 +292,13 @@ MUTATIONS = [
     ),
     # The pyramid's L-BFGS phase before Newton's method.
     M(
+        "Q5",
+        "native/src/pyramid_deformer.cpp",
+        "if (!(v.dot(Ap) < 0)) return false;",
+        "return false;",
+        "saddles: no step along negative curvature (the iterate leaves by round-off)",
+    ),
+    M(
         "Q1",
         "native/src/pyramid_deformer.cpp",
         "        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"

@@ -42,6 +42,11 @@ constexpr int kQuasiMost = 1000;
 // with a budget of one iteration stays within a few factorisations' time.
 constexpr int kQuasiPerNewton = 50;
 constexpr int kHistory = 8;
+// Inverse iterations for a saddle's direction of negative curvature (escape_saddle), tried
+// when the exact Hessian is not positive definite right after a step of at most kSaddleBelow
+// of the diagonal (near a stationary point; a round-off-driven escape grows from ~1e-5).
+constexpr int kInverseIterations = 20;
+constexpr double kSaddleBelow = 1e-4;
 }  // namespace
 
 struct PyramidDeformer::Impl {
@@ -671,80 +676,136 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
                              ? options.max_lbfgs_iterations
                              : static_cast<int>(std::min<long long>(
                                    kQuasiMost, 1LL * kQuasiPerNewton * options.max_iterations));
-  if (S.fixed) {
-    // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest), kept
-    // by the deformer: a live update does not allocate them again.
-    std::vector<Eigen::VectorXd>& hs = S.pairs_s;
-    std::vector<Eigen::VectorXd>& hy = S.pairs_y;
-    double hrho[kHistory], a_hist[kHistory];
-    int pairs = 0, oldest = 0;
-    auto slot = [&](int j) { return (oldest + j) % kHistory; };
-    Eigen::VectorXd q(3 * nf), gn(3 * nf);
-    S.gradient(X.data(), &g);
-    for (int it = 0; it < quasi_most; ++it) {
-      q = -g;
-      for (int j = pairs - 1; j >= 0; --j) {
-        const int i = slot(j);
-        a_hist[i] = hrho[i] * hs[i].dot(q);
-        q -= a_hist[i] * hy[i];
-      }
-      S.fixed_solve(q, &d);
-      for (int j = 0; j < pairs; ++j) {
-        const int i = slot(j);
-        const double b = hrho[i] * hy[i].dot(d);
-        d += (a_hist[i] - b) * hs[i];
-      }
-      double slope = g.dot(d);
-      if (!(slope < 0)) {
-        pairs = 0;
+  // Run again after a step off a saddle (escape_saddle below): between a saddle and the next
+  // minimum the energy is not convex, where Newton's method with the positive semidefinite
+  // Hessian crawls and L-BFGS does not.
+  auto run_lbfgs = [&]() {
+    if (S.fixed) {
+      // The correction pairs in a ring (slot (oldest + j) % kHistory is the j-th oldest), kept
+      // by the deformer: a live update does not allocate them again.
+      std::vector<Eigen::VectorXd>& hs = S.pairs_s;
+      std::vector<Eigen::VectorXd>& hy = S.pairs_y;
+      double hrho[kHistory], a_hist[kHistory];
+      int pairs = 0, oldest = 0;
+      auto slot = [&](int j) { return (oldest + j) % kHistory; };
+      Eigen::VectorXd q(3 * nf), gn(3 * nf);
+      S.gradient(X.data(), &g);
+      while (last_lbfgs_iterations_ < quasi_most) {
         q = -g;
+        for (int j = pairs - 1; j >= 0; --j) {
+          const int i = slot(j);
+          a_hist[i] = hrho[i] * hs[i].dot(q);
+          q -= a_hist[i] * hy[i];
+        }
         S.fixed_solve(q, &d);
-        slope = g.dot(d);
-        if (!(slope < 0)) break;
-      }
-      const double noise = 1e-13 * std::abs(E);
-      double alpha = 1;
-      bool accepted = false;
-      double Et = E;
-      for (int tries = 0; tries < 8; ++tries, alpha *= 0.5) {
-        moved(alpha);
-        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);
-        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {
-          accepted = true;
+        for (int j = 0; j < pairs; ++j) {
+          const int i = slot(j);
+          const double b = hrho[i] * hy[i].dot(d);
+          d += (a_hist[i] - b) * hs[i];
+        }
+        double slope = g.dot(d);
+        if (!(slope < 0)) {
+          pairs = 0;
+          q = -g;
+          S.fixed_solve(q, &d);
+          slope = g.dot(d);
+          if (!(slope < 0)) break;
+        }
+        const double noise = 1e-13 * std::abs(E);
+        double alpha = 1;
+        bool accepted = false;
+        double Et = E;
+        for (int tries = 0; tries < 8; ++tries, alpha *= 0.5) {
+          moved(alpha);
+          Et = S.fit_all(trial.data(), kappa, &S.trial_fits);
+          if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {
+            accepted = true;
+            break;
+          }
+        }
+        if (!accepted) break;
+        X.swap(trial);
+        S.fits.swap(S.trial_fits);
+        E = Et;
+        ++last_lbfgs_iterations_;
+        S.gradient(X.data(), &gn);
+        const double step = step_of(alpha);
+        // The new pair goes to the next free slot, or over the oldest.
+        const int i = pairs < kHistory ? slot(pairs) : oldest;
+        hs[i] = alpha * d;
+        hy[i] = gn - g;
+        const double sy = hs[i].dot(hy[i]);
+        // A pair with no positive curvature would make the inverse update indefinite: skipped.
+        if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {
+          hrho[i] = 1.0 / sy;
+          if (pairs < kHistory) {
+            ++pairs;
+          } else {
+            oldest = (oldest + 1) % kHistory;
+          }
+        }
+        g.swap(gn);
+        report(0, diag_ > 0 ? step / diag_ : 0.0, false);
+        if (step <= kQuasiUntil * diag_) {
+          exact = true;
           break;
         }
       }
-      if (!accepted) break;
-      X.swap(trial);
-      S.fits.swap(S.trial_fits);
-      E = Et;
-      ++last_lbfgs_iterations_;
-      S.gradient(X.data(), &gn);
-      const double step = step_of(alpha);
-      // The new pair goes to the next free slot, or over the oldest.
-      const int i = pairs < kHistory ? slot(pairs) : oldest;
-      hs[i] = alpha * d;
-      hy[i] = gn - g;
-      const double sy = hs[i].dot(hy[i]);
-      // A pair with no positive curvature would make the inverse update indefinite: skipped.
-      if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {
-        hrho[i] = 1.0 / sy;
-        if (pairs < kHistory) {
-          ++pairs;
-        } else {
-          oldest = (oldest + 1) % kHistory;
-        }
-      }
-      g.swap(gn);
-      report(0, diag_ > 0 ? step / diag_ : 0.0, false);
-      if (step <= kQuasiUntil * diag_) {
-        exact = true;
-        break;
-      }
     }
-  }
+  };
+  run_lbfgs();
   last_energy_ = E;
   bool have_factor = false;
+  // At a saddle (a stationary point whose exact Hessian is not positive definite) the steps of
+  // the positive semidefinite Hessian vanish, and the iterate leaves only as round-off grows
+  // along the unstable direction: hundreds of iterations (a short thick tube twisted by 90
+  // degrees, docs/pyramid.md). One step along a direction of negative curvature instead: the
+  // exact Hessian shifted by sigma D until positive definite, inverse iteration on D^-1 H for
+  // its lowest mode, then the longest step along it (1e-3 to 0.1 of the diagonal, doubling)
+  // that keeps lowering the energy. False (nothing changed) without negative curvature.
+  auto escape_saddle = [&]() -> bool {
+    bool ok = false;
+    for (double sigma = kDampingStart; !ok && sigma <= kDampingMost; sigma *= 4) {
+      S.assemble(sigma);
+      ++last_factorizations_;
+      ok = S.chol->refactor(S.values.data());
+    }
+    have_factor = ok;
+    if (!ok) return false;
+    auto d_norm = [&](const Eigen::VectorXd& x) {
+      double sum = 0;
+      for (int J = 0; J < nf; ++J)
+        sum += S.damp[static_cast<size_t>(J)] * x.segment<3>(3 * J).squaredNorm();
+      return std::sqrt(sum);
+    };
+    Eigen::VectorXd v = g;
+    if (!(v.norm() > 0)) v.setOnes();
+    v /= d_norm(v);
+    for (int k = 0; k < kInverseIterations; ++k) {
+      for (int J = 0; J < nf; ++J)
+        z.segment<3>(3 * J) = S.damp[static_cast<size_t>(J)] * v.segment<3>(3 * J);
+      S.chol->solve(z.data(), p.data(), 1);
+      v = p / d_norm(p);
+    }
+    S.product(v.data(), 0.0, Ap.data());
+    if (!(v.dot(Ap) < 0)) return false;
+    d = g.dot(v) > 0 ? Eigen::VectorXd(-v) : v;
+    const double unit = step_of(1.0);
+    double best = 0, E_best = E;
+    for (double len = 1e-3 * diag_; len <= 0.1 * diag_ * (1 + 1e-9); len *= 2) {
+      moved(len / unit);
+      const double Et = S.fit_all(trial.data(), kappa, false);
+      if (!(std::isfinite(Et) && Et < E_best)) break;
+      best = len / unit;
+      E_best = Et;
+    }
+    if (!(best > 0 && E_best < E - 1e-13 * std::abs(E))) return false;
+    moved(best);
+    X.swap(trial);
+    E = S.fit_all(X.data(), kappa, true);
+    last_step_ = diag_ > 0 ? step_of(best) / diag_ : 0.0;
+    return true;
+  };
   while (last_iterations_ < options.max_iterations) {
     S.gradient(X.data(), &g);
     const bool changed = S.terms_all(kappa, exact);
@@ -764,6 +825,15 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         // Not positive definite: the exact Hessian away from a minimum, or a singular system.
         if (exact) {
           exact = false;
+          // Right after a small step: near a stationary point that is not a minimum.
+          if (last_iterations_ > 0 && last_step_ <= kSaddleBelow && escape_saddle()) {
+            ++last_iterations_;
+            last_steps_.push_back(last_step_);
+            report(last_iterations_, last_step_, false);
+            run_lbfgs();
+            last_energy_ = E;
+            have_factor = false;
+          }
         } else {
           mu = std::max(4 * mu, kDampingStart);
           if (mu > kDampingMost) {
