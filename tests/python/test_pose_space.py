@@ -72,6 +72,18 @@ def handle_positions(x, handles):
     return [x[h] for h in handles]
 
 
+def relabelled(v, f, ex, handles, seed, rotational=None, **kw):
+    """The same PoseSpaceDeformer on a random vertex and face numbering: (deformer, vp), new
+    vertex i being old vertex vp[i]."""
+    rng = np.random.default_rng(seed)
+    vp, fp = rng.permutation(len(v)), rng.permutation(len(f))  # new -> old
+    vinv, finv = np.argsort(vp), np.argsort(fp)
+    if rotational is not None:
+        kw["rotational"] = [(finv[a], finv[b]) for a, b in rotational]
+    d = md.PoseSpaceDeformer(v[vp], vinv[f[fp]], ex[:, vp], [vinv[h] for h in handles], **kw)
+    return d, vp
+
+
 def in_between(ex, handles, seed=0):
     rng = np.random.default_rng(seed)
     w = np.array([0.5, 0.3, 0.2])
@@ -266,17 +278,7 @@ def test_relabelling_permutes_the_result(scene):
     pair = [(5, len(f) - 20)]
     kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
     d = md.PoseSpaceDeformer(v, f, ex, handles, rotational=pair, **kw)
-    rng = np.random.default_rng(11)
-    vp, fp = rng.permutation(len(v)), rng.permutation(len(f))  # new -> old
-    vinv, finv = np.argsort(vp), np.argsort(fp)
-    d2 = md.PoseSpaceDeformer(
-        v[vp],
-        vinv[f[fp]],
-        ex[:, vp],
-        [vinv[h] for h in handles],
-        rotational=[(finv[a], finv[b]) for a, b in pair],
-        **kw,
-    )
+    d2, vp = relabelled(v, f, ex, handles, 11, rotational=pair, **kw)
     hp = in_between(ex, handles)
     G = rotation([0, 1, 1], 0.4)[None]
     X, X2 = d.deform(hp, G), d2.deform(hp, G)
@@ -347,14 +349,11 @@ def test_parts_at_an_example_are_that_example_and_relabelling_permutes(scene):
         np.testing.assert_array_equal(X[2 * n :], V[2 * n :])
     kw = dict(rotation_iterations=500, gauge_steps=100, rotation_tolerance=1e-12)
     d = md.PoseSpaceDeformer(V, F, EX, H, **kw)
-    rng = np.random.default_rng(5)
-    vp, fp = rng.permutation(len(V)), rng.permutation(len(F))  # new -> old
-    vinv = np.argsort(vp)
-    d2 = md.PoseSpaceDeformer(V[vp], vinv[F[fp]], EX[:, vp], [vinv[h] for h in H], **kw)
+    d2, vp = relabelled(V, F, EX, H, 5, **kw)
     hp = in_between(EX, H)
     X, X2 = d.deform(hp), d2.deform(hp)
     assert np.abs(X[vp] - X2).max() < 1e-9 * diag(V)
-    np.testing.assert_array_equal(X2[vinv[2 * n :]], V[2 * n :])
+    np.testing.assert_array_equal(X2[np.argsort(vp)[2 * n :]], V[2 * n :])
 
 
 def test_a_free_joint_changes_nothing():
@@ -379,18 +378,8 @@ def test_a_free_joint_changes_nothing():
     hp = [p @ R.T + t for p in in_between(EX, H, seed=3)]
     X = d.deform(hp)
     assert np.abs(X - plain.deform(hp)).max() < 1e-9 * diag(V)
-    rng = np.random.default_rng(8)
-    vp, fp = rng.permutation(len(V)), rng.permutation(len(F))  # new -> old
-    vinv, finv = np.argsort(vp), np.argsort(fp)
-    d2 = md.PoseSpaceDeformer(
-        V[vp],
-        vinv[F[fp]],
-        EX[:, vp],
-        [vinv[h] for h in H],
-        rotational=[(finv[a], finv[b]) for a, b in pair],
-        **kw,
-    )
-    assert np.abs(d2.deform(hp)[vinv] - X).max() < 1e-9 * diag(V)
+    d2, vp = relabelled(V, F, EX, H, 8, rotational=pair, **kw)
+    assert np.abs(d2.deform(hp) - X[vp]).max() < 1e-9 * diag(V)
     # Given, the joint's rotation links the bars.
     G = rotation([0, 1, 1], 0.5)[None]
     assert np.abs(d.deform(hp, G) - X).max() > 1e-3 * diag(V)
@@ -790,13 +779,8 @@ def test_flat_coarse_mesh_does_not_depend_on_numbering():
     # The clean-up (flips, fan removals, the jittered retry the bar needs at 1000 faces) runs
     # in the canonical order, so a relabelled mesh gets the same coarse mesh.
     v, f, ex, handles = flat_case("square bar")
-    rng = np.random.default_rng(5)
-    vp, fp = rng.permutation(len(v)), rng.permutation(len(f))  # new -> old
-    vinv = np.argsort(vp)
     d = md.PoseSpaceDeformer(v, f, ex, handles, coarse=1000)
-    d2 = md.PoseSpaceDeformer(
-        v[vp], vinv[f[fp]], ex[:, vp], [vinv[h] for h in handles], coarse=1000
-    )
+    d2, vp = relabelled(v, f, ex, handles, 5, coarse=1000)
 
     def corner_sets(dd, to_old):
         faces = to_old[dd.coarse_vertices][dd.coarse_faces]
