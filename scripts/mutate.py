@@ -133,8 +133,8 @@ MUTATIONS = [
     M(
         "H1",
         "native/src/weights.cpp",
-        "rhs(ug, anchor_of[f]) += w;",
-        "rhs(ug, anchor_of[f]) += 0.0 * w;",
+        "couplings.push_back({ug, anchor_of[f], w});",
+        "couplings.push_back({ug, anchor_of[f], 0.0 * w});",
         "harmonic weights drop the boundary term of an anchor face numbered before its neighbour",
     ),
     M(
@@ -301,10 +301,10 @@ MUTATIONS = [
     M(
         "Q1",
         "native/src/pyramid_deformer.cpp",
-        "        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
-        "        if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
-        "        Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
-        "        if (std::isfinite(Et)) {",
+        "          Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
+        "          if (std::isfinite(Et) && Et <= E + 1e-4 * alpha * slope + noise) {",
+        "          Et = S.fit_all(trial.data(), kappa, &S.trial_fits);\n"
+        "          if (std::isfinite(Et)) {",
         "pyramid L-BFGS: every step is accepted, also one that raises the energy",
     ),
     M(
@@ -324,9 +324,37 @@ MUTATIONS = [
     M(
         "Q4",
         "native/src/pyramid_deformer.cpp",
-        "      if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {",
-        "      if (false && sy > 1e-12 * hs[i].norm() * hy[i].norm()) {",
+        "        if (sy > 1e-12 * alpha * d.norm() * q.norm()) {",
+        "        if (false && sy > 1e-12 * alpha * d.norm() * q.norm()) {",
         "pyramid L-BFGS keeps no correction pairs (the local-global step alone)",
+    ),
+    M(
+        "Q6",
+        "native/src/pyramid_deformer.cpp",
+        "        if (pairs > 0) d *= gamma;",
+        "",
+        "pyramid L-BFGS: the initial inverse Hessian C^-1 is not scaled by gamma",
+    ),
+    M(
+        "Q7",
+        "native/src/pyramid_deformer.cpp",
+        "          hcy[i] = S.cg_new - S.cg;",
+        "          hcy[i] = S.cg_new;",
+        "pyramid L-BFGS: C^-1 y kept as C^-1 g_new (the two-loop's C^-1 q is wrong)",
+    ),
+    M(
+        "Q8",
+        "native/src/pyramid_deformer.cpp",
+        "    if (tight && step <= limit) {",
+        "    if (newton && step <= limit) {",
+        "pyramid Newton: the stopping rule trusts a step solved only to 1e-3",
+    ),
+    M(
+        "Q9",
+        "native/src/pyramid_deformer.cpp",
+        "const double eta = tight ? kTightEta : newton ? kLooseEta : 1e-2;",
+        "const double eta = newton ? kLooseEta : 1e-2;",
+        "pyramid Newton: every Newton step is solved only to 1e-3, the last ones too",
     ),
     M(
         "RP1",

@@ -29,14 +29,26 @@ constexpr int kMinChunk = 64;
 // definite and converges quadratically).
 constexpr double kExactBelow = 1e-2;
 constexpr double kDampingStart = 1e-6;
-// Conjugate-gradient iterations with a stale factorisation before refactoring.
-constexpr int kReuseMost = 8;
+// Conjugate-gradient iterations with a stale factorisation before refactoring: a 1-RHS solve
+// and a product cost ~1/15 of a refactorisation on the cat (docs/pyramid.md, solver).
+constexpr int kReuseMost = 20;
+// Inexact Newton: while the last step was above kLooseAbove x tol the Newton system is solved
+// to kLooseEta relative residual (the step's direction, not its last digits, matters there);
+// near the stopping rule to kTightEta.
+constexpr double kLooseEta = 1e-3;
+constexpr double kLooseAbove = 100;
+constexpr double kTightEta = 1e-8;
 constexpr double kDampingMost = 1e12;
-// L-BFGS before Newton's method: until a step moves no vertex by more than this fraction of the
-// diagonal (measured on the cat: 1e-3 leaves 3-5 Newton iterations, 1e-4 one factorisation
-// and 2-3 iterations, 1e-5 costs more L-BFGS iterations than it saves), or at most kQuasiMost
-// iterations; kHistory correction pairs.
+// L-BFGS before Newton's method: until a step moves no vertex by more than kQuasiUntil of the
+// diagonal, times (kQuasiFree / free vertices)^1.5 above kQuasiFree free vertices (the finer the
+// mesh, the smaller L-BFGS's steps at the same distance from the minimum, and Newton's method
+// handed a point too far away takes steps of 1e-2 of the diagonal and 7-12 iterations), or at
+// most kQuasiMost iterations; kHistory correction pairs. Measured on the cat (docs/pyramid.md,
+// solver): 5k and 14k faces are fastest at 1e-4 (2e-4 sends 14k pose 4 wandering, 1e-5 costs
+// more L-BFGS iterations than it saves); 58k (22812 free) at 1e-5-2e-5, with 2.6e-5 already
+// wandering on two poses: the exponent 1.5 puts it at 1.3e-5.
 constexpr double kQuasiUntil = 1e-4;
+constexpr double kQuasiFree = 6000;
 constexpr int kQuasiMost = 1000;
 // ... and at most this many per Newton iteration of the call's budget, so that a live update
 // with a budget of one iteration stays within a few factorisations' time.
@@ -92,6 +104,8 @@ struct PyramidDeformer::Impl {
   std::vector<Fit> trial_fits;   // a line search's fits, swapped into `fits` when accepted
   std::vector<double> energies;  // fit_all's per-pyramid energies
   std::vector<Eigen::VectorXd> pairs_s, pairs_y;  // L-BFGS's correction pairs (kHistory, 3 nf)
+  std::vector<Eigen::VectorXd> pairs_cy;          // C^-1 y of each pair (kHistory, 3 nf)
+  Eigen::VectorXd cg, cg_new;                     // C^-1 g at the iterate and at the trial
   void gradient(const double* X, Eigen::VectorXd* g) const;
   // Every pyramid's Hessian terms at the current fits; returns whether the positive
   // semidefinite version changed any (exact = false).
@@ -271,6 +285,7 @@ PyramidDeformer::Impl::Impl(const Vertices& vertices, const Faces& faces,
     cols.resize(3 * nf);
     pairs_s.assign(kHistory, Eigen::VectorXd(3 * nf));
     pairs_y = pairs_s;
+    pairs_cy = pairs_s;
   }
   values.assign(static_cast<size_t>(colptr.back()), 0.0);
   fits.resize(static_cast<size_t>(np));
@@ -672,6 +687,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
   // local-global step (fits held fixed, positions solved exactly). It closes most of the
   // distance from the start cheaply; Newton's method then finishes from close by.
   last_lbfgs_iterations_ = 0;
+  const double quasi_until = kQuasiUntil * std::pow(std::min(1.0, kQuasiFree / nf), 1.5);
   const int quasi_most = options.max_lbfgs_iterations >= 0
                              ? options.max_lbfgs_iterations
                              : static_cast<int>(std::min<long long>(
@@ -685,19 +701,30 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
       // by the deformer: a live update does not allocate them again.
       std::vector<Eigen::VectorXd>& hs = S.pairs_s;
       std::vector<Eigen::VectorXd>& hy = S.pairs_y;
+      std::vector<Eigen::VectorXd>& hcy = S.pairs_cy;
       double hrho[kHistory], a_hist[kHistory];
       int pairs = 0, oldest = 0;
+      // The initial inverse Hessian is gamma C^-1, gamma = s'y / y'C^-1 y of the newest pair:
+      // C overestimates the energy's curvature along the soft bending modes (the fits'
+      // rotations relax them; gamma 1.5-4 on the cat), and unscaled L-BFGS takes ~1.5x the
+      // iterations (cat 14k pose 7: 288 instead of 193). C^-1 g is kept per iterate and
+      // C^-1 y = C^-1 g_new - C^-1 g per pair, so the two-loop recursion forms
+      // C^-1 q = -C^-1 g - sum a_i C^-1 y_i without a solve: one solve per iteration.
+      double gamma = 1;
       auto slot = [&](int j) { return (oldest + j) % kHistory; };
       Eigen::VectorXd q(3 * nf), gn(3 * nf);
       S.gradient(X.data(), &g);
+      S.fixed_solve(g, &S.cg);
       while (last_lbfgs_iterations_ < quasi_most) {
         q = -g;
+        d = -S.cg;
         for (int j = pairs - 1; j >= 0; --j) {
           const int i = slot(j);
           a_hist[i] = hrho[i] * hs[i].dot(q);
           q -= a_hist[i] * hy[i];
+          d -= a_hist[i] * hcy[i];
         }
-        S.fixed_solve(q, &d);
+        if (pairs > 0) d *= gamma;
         for (int j = 0; j < pairs; ++j) {
           const int i = slot(j);
           const double b = hrho[i] * hy[i].dot(d);
@@ -705,9 +732,9 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         }
         double slope = g.dot(d);
         if (!(slope < 0)) {
+          // Restart from the local-global step.
           pairs = 0;
-          q = -g;
-          S.fixed_solve(q, &d);
+          d = -S.cg;
           slope = g.dot(d);
           if (!(slope < 0)) break;
         }
@@ -729,15 +756,20 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         E = Et;
         ++last_lbfgs_iterations_;
         S.gradient(X.data(), &gn);
+        S.fixed_solve(gn, &S.cg_new);
         const double step = step_of(alpha);
-        // The new pair goes to the next free slot, or over the oldest.
-        const int i = pairs < kHistory ? slot(pairs) : oldest;
-        hs[i] = alpha * d;
-        hy[i] = gn - g;
-        const double sy = hs[i].dot(hy[i]);
-        // A pair with no positive curvature would make the inverse update indefinite: skipped.
-        if (sy > 1e-12 * hs[i].norm() * hy[i].norm()) {
+        // y into the scratch q first: a pair with no positive curvature would make the inverse
+        // update indefinite and is skipped, leaving the ring as it was.
+        q = gn - g;
+        const double sy = alpha * d.dot(q);
+        if (sy > 1e-12 * alpha * d.norm() * q.norm()) {
+          // The new pair goes to the next free slot, or over the oldest.
+          const int i = pairs < kHistory ? slot(pairs) : oldest;
+          hs[i] = alpha * d;
+          hy[i].swap(q);
+          hcy[i] = S.cg_new - S.cg;
           hrho[i] = 1.0 / sy;
+          gamma = sy / hy[i].dot(hcy[i]);
           if (pairs < kHistory) {
             ++pairs;
           } else {
@@ -745,8 +777,9 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
           }
         }
         g.swap(gn);
+        S.cg.swap(S.cg_new);
         report(0, diag_ > 0 ? step / diag_ : 0.0, false);
-        if (step <= kQuasiUntil * diag_) {
+        if (step <= quasi_until * diag_) {
           exact = true;
           break;
         }
@@ -812,7 +845,9 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     rhs = -g;
     // A Newton step accurate to eta: loose far away, tight where the stopping rule may apply.
     const bool newton = (exact || !changed) && mu == 0;
-    const double eta = newton ? 1e-8 : 1e-2;
+    // (last_step_ is NaN before the first step: tight)
+    const bool tight = newton && !(last_step_ > kLooseAbove * options.tol);
+    const double eta = tight ? kTightEta : newton ? kLooseEta : 1e-2;
     bool solved = false;
     // The last factorisation, of an earlier iterate's matrix, often still preconditions this
     // one well enough: a few products instead of a factorisation (~10x their cost).
@@ -852,7 +887,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     double alpha = 1;
     // Round-off of the energy (a sum over all pyramids): below it, energy changes mean nothing.
     const double noise = 1e-13 * std::abs(E);
-    if (newton && step <= limit) {
+    if (tight && step <= limit) {
       moved(1.0);
       X.swap(trial);
       E = S.fit_all(X.data(), kappa, true);
