@@ -357,6 +357,13 @@ MUTATIONS = [
         "pyramid Newton: every Newton step is solved only to 1e-3, the last ones too",
     ),
     M(
+        "Q10",
+        "native/src/pyramid_deformer.cpp",
+        "        exact = false;\n        --last_iterations_;\n        continue;\n",
+        "        exact = false;\n",
+        "pyramid Newton: a rejected exact step spends the iteration (a live chain can stall)",
+    ),
+    M(
         "RP1",
         "native/src/reposition.cpp",
         "y -= k * p[a.nfix];",

@@ -931,7 +931,13 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
         if (step <= limit) mu = 0;
         if (!exact && alpha * step < kExactBelow * diag_) exact = true;
       } else if (exact) {
+        // The exact Hessian's step raised the energy: the iterate is farther from a minimum
+        // than a warm start or the handover assumed. The projected Hessian retries this
+        // iteration instead of spending it: a live update with a budget of one iteration
+        // would otherwise return unmoved and meet the same point again on every update.
         exact = false;
+        --last_iterations_;
+        continue;
       } else {
         mu = std::max(4 * mu, kDampingStart);
       }

@@ -589,6 +589,29 @@ def test_the_sliver_capped_cylinder_converges_instead_of_running_away():
     assert d.last_energy < E0
 
 
+def test_a_rejected_exact_step_does_not_spend_a_live_update():
+    """Review (the add-on's live chain on the sliver-capped cylinder): from this warm start (a
+    live result of the chain, saved with its targets) the exact Hessian's step raises the
+    energy. A one-iteration update used to spend its iteration on that rejection and return
+    unmoved, so every later update met the same point and the chain never settled. The
+    projected Hessian now retries the iteration: each update lowers the energy, and the chain
+    settles within 20 updates at the minimum Settle finds from its own start."""
+    z = np.load(Path(__file__).parent / "data" / "cylinder_stuck_warm_start.npz")
+    tri = np.load(Path(__file__).parent / "data" / "cylinder_subdivided_ngon_caps.npz")["triangles"]
+    d = md.PyramidDeformer(z["vertices"], tri, z["controls"])
+    t, x = z["targets"], z["initial"]
+    energy = d.energy(d.deform(t, iterations=0, initial=x, lbfgs_iterations=0))[0]
+    for _ in range(20):
+        x = d.deform(t, iterations=1, initial=x)
+        assert d.last_steps[0] > 0 and d.last_energy <= energy * (1 + 1e-12)  # round-off
+        energy = d.last_energy
+        if d.last_converged:
+            break
+    assert d.last_converged
+    settled = d.deform(t)
+    assert d.last_converged and np.abs(settled - x).max() < 1e-9 * d.diagonal
+
+
 def test_a_saddle_is_left_along_negative_curvature():
     """A tube 8 radii long, end rings controlled, the top turned by 112.5 degrees: the uniform
     twist is a saddle of the energy (docs/pyramid.md, torsion). Newton's method reaches it and
