@@ -850,7 +850,7 @@ Vertices PyramidDeformer::deform(const Vertices& control_positions,
     const double eta = tight ? kTightEta : newton ? kLooseEta : 1e-2;
     bool solved = false;
     // The last factorisation, of an earlier iterate's matrix, often still preconditions this
-    // one well enough: a few products instead of a factorisation (~10x their cost).
+    // one well enough: a few products and substitutions instead of a factorisation (kReuseMost).
     if (have_factor) solved = pcg(eta, kReuseMost);
     if (!solved) {
       S.assemble(mu);
