@@ -268,6 +268,20 @@ MUTATIONS = [
         "the rotation fit accepts eigenvalue gaps too small for its Newton root",
     ),
     M(
+        "T7",
+        "native/src/transforms.cpp",
+        "const Vec4m fast = (qn > 1e-3 * cube)",
+        "const Vec4m fast = (qn > 1e-9 * cube)",
+        "the four-lane rotation fit keeps unrefined roots near small eigenvalue gaps",
+    ),
+    M(
+        "T8",
+        "native/src/transforms.cpp",
+        "H[0].data()[e], H[1].data()[e], H[2].data()[e], H[3].data()[e]",
+        "H[0].data()[e], H[1].data()[e], H[1].data()[e], H[3].data()[e]",
+        "the four-lane rotation fit reads the second matrix into the third lane",
+    ),
+    M(
         "P4",
         "native/src/pyramid_coordinates.cpp",
         "weight[i] = w / length[i];",

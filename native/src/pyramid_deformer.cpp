@@ -306,10 +306,14 @@ double PyramidDeformer::Impl::fit_all(const double* X, double kappa, std::vector
   e.resize(static_cast<size_t>(np));
   if (keep) keep->resize(static_cast<size_t>(np));
   parallel_ranges(np, kMinChunk, chunks(), [&](int b, int end) {
-    for (int c = b; c < end; ++c) {
-      Fit f = pyramid::fit_pyramid(pyr, c, X, kappa);
-      e[static_cast<size_t>(c)] = f.energy;
-      if (keep) (*keep)[static_cast<size_t>(c)] = f;
+    Fit f[4];
+    for (int c = b; c < end; c += 4) {
+      const int count = std::min(4, end - c);
+      pyramid::fit_pyramids(pyr, c, count, X, kappa, f);
+      for (int i = 0; i < count; ++i) {
+        e[static_cast<size_t>(c + i)] = f[i].energy;
+        if (keep) (*keep)[static_cast<size_t>(c + i)] = f[i];
+      }
     }
   });
   double E = 0;

@@ -58,8 +58,9 @@ Pyramids make_pyramids(const Vertices& rest, const PyramidCoordinates& coords,
   return P;
 }
 
-void best_rotation(const Mat3& H, Mat3* R, double* trace) {
-  if (fit_rotation(H, R, trace)) return;
+namespace {
+// The SVD's rotation, where fit_rotation declines (H of rank <= 1, or nearly so).
+void svd_rotation(const Mat3& H, Mat3* R, double* trace) {
   const Eigen::JacobiSVD<Mat3> svd(H, Eigen::ComputeFullU | Eigen::ComputeFullV);
   Mat3 D = Mat3::Identity();
   Vec3 sig = svd.singularValues();
@@ -70,29 +71,65 @@ void best_rotation(const Mat3& H, Mat3* R, double* trace) {
   *R = svd.matrixU() * D * svd.matrixV().transpose();
   *trace = sig.sum();
 }
+}  // namespace
+
+void best_rotation(const Mat3& H, Mat3* R, double* trace) {
+  if (fit_rotation(H, R, trace)) return;
+  svd_rotation(H, R, trace);
+}
+
+void fit_pyramids(const Pyramids& P, int c0, int count, const double* X, double kappa, Fit* out) {
+  Mat3 H[4], R[4];
+  double trace[4];
+  bool ok[4];
+  for (int i = 0; i < count; ++i) {
+    const int c = c0 + i;
+    Fit& f = out[i];
+    f = Fit();
+    const int b = P.offsets[static_cast<size_t>(c)], e = P.offsets[static_cast<size_t>(c) + 1];
+    const int M = e - b;
+    const int* mem = P.members.data() + b;
+    const double* p = P.rest.data() + 3 * static_cast<size_t>(b);
+    for (int k = 0; k < M; ++k) f.centre += row(X, mem[k]);
+    f.centre /= M;
+    for (int k = 0; k < M; ++k) {
+      f.H += (row(X, mem[k]) - f.centre) * Vec3(p[3 * k], p[3 * k + 1], p[3 * k + 2]).transpose();
+    }
+    H[i] = f.H;
+  }
+  for (int i = count; i < 4; ++i) H[i] = H[0];  // padding: lanes do not affect each other
+  // Four at a time: the same rotation, to round-off, as one fit_rotation call each, and what a
+  // pyramid gets does not depend on which others share its call (relabelling, thread counts).
+  fit_rotations4(H, R, trace, ok);
+  for (int i = 0; i < count; ++i) {
+    const int c = c0 + i;
+    Fit& f = out[i];
+    if (ok[i]) {
+      f.R = R[i];
+      f.trace = trace[i];
+    } else {
+      svd_rotation(f.H, &f.R, &f.trace);
+    }
+    const int b = P.offsets[static_cast<size_t>(c)], e = P.offsets[static_cast<size_t>(c) + 1];
+    const int M = e - b;
+    const int* mem = P.members.data() + b;
+    const double* p = P.rest.data() + 3 * static_cast<size_t>(b);
+    const double s0 = P.size[static_cast<size_t>(c)];
+    f.scale = (f.trace / s0 + kappa) / (1 + kappa);
+    // The residual form (not |y|^2 - t^2 / s0): no cancellation when the fit is good.
+    const Mat3 sR = f.scale * f.R;
+    double E = kappa * s0 * (f.scale - 1) * (f.scale - 1);
+    for (int k = 0; k < M; ++k) {
+      E += (row(X, mem[k]) - f.centre - sR * Vec3(p[3 * k], p[3 * k + 1], p[3 * k + 2]))
+               .squaredNorm();
+    }
+    f.energy = E;
+  }
+}
 
 Fit fit_pyramid(const Pyramids& P, int c, const double* X, double kappa) {
   Fit f;
-  const int b = P.offsets[static_cast<size_t>(c)], e = P.offsets[static_cast<size_t>(c) + 1];
-  const int M = e - b;
-  const int* mem = P.members.data() + b;
-  const double* p = P.rest.data() + 3 * static_cast<size_t>(b);
-  for (int k = 0; k < M; ++k) f.centre += row(X, mem[k]);
-  f.centre /= M;
-  for (int k = 0; k < M; ++k) {
-    f.H += (row(X, mem[k]) - f.centre) * Vec3(p[3 * k], p[3 * k + 1], p[3 * k + 2]).transpose();
-  }
-  best_rotation(f.H, &f.R, &f.trace);
-  const double s0 = P.size[static_cast<size_t>(c)];
-  f.scale = (f.trace / s0 + kappa) / (1 + kappa);
-  // The residual form (not |y|^2 - t^2 / s0): no cancellation when the fit is good.
-  const Mat3 sR = f.scale * f.R;
-  double E = kappa * s0 * (f.scale - 1) * (f.scale - 1);
-  for (int k = 0; k < M; ++k) {
-    E +=
-        (row(X, mem[k]) - f.centre - sR * Vec3(p[3 * k], p[3 * k + 1], p[3 * k + 2])).squaredNorm();
-  }
-  f.energy = E;
+  fit_pyramids(P, c, 1, X, kappa, &f);
   return f;
 }
 

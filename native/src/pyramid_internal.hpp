@@ -69,6 +69,9 @@ struct Fit {
 
 // Fits pyramid c to X (n,3) and returns its energy (finite or not).
 Fit fit_pyramid(const Pyramids& P, int c, const double* X, double kappa);
+// Fits pyramids c0 .. c0 + count - 1 (count 1 to 4) into out[0 .. count): each exactly as
+// fit_pyramid would, whichever pyramids share the call.
+void fit_pyramids(const Pyramids& P, int c0, int count, const double* X, double kappa, Fit* out);
 
 // The Hessian of pyramid c's energy with respect to its members' positions (3M x 3M),
 //   2 (I - 11^T / M) (x) I_3 - sum_q coef_q u_q u_q^T,

@@ -340,6 +340,131 @@ bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace) {
   return true;
 }
 
+namespace {
+// fit_rotation's common case for four matrices at once, lane by lane the same steps (Horn's
+// matrix, Newton's method on its characteristic polynomial from above, the largest adjugate
+// column). A lane whose root would need refining (relative eigenvalue gap below ~1e-3), or that
+// is not finite, is left to fit_rotation itself.
+MD_ALWAYS_INLINE void fit_rotations4_body(const Eigen::Matrix3d* H, Eigen::Matrix3d* R,
+                                          double* trace, bool* ok) {
+  Vec4d h[9];  // h[r + 3 c] = H(r, c) of the four lanes
+  for (int e = 0; e < 9; ++e) {
+    h[e] = Vec4d{H[0].data()[e], H[1].data()[e], H[2].data()[e], H[3].data()[e]};
+  }
+  const Vec4d sxx = h[0], sxy = h[1], sxz = h[2];
+  const Vec4d syx = h[3], syy = h[4], syz = h[5];
+  const Vec4d szx = h[6], szy = h[7], szz = h[8];
+  Vec4d N[4][4];
+  N[0][0] = sxx + syy + szz, N[0][1] = syz - szy, N[0][2] = szx - sxz, N[0][3] = sxy - syx;
+  N[1][1] = sxx - syy - szz, N[1][2] = sxy + syx, N[1][3] = szx + sxz;
+  N[2][2] = -sxx + syy - szz, N[2][3] = syz + szy;
+  N[3][3] = -sxx - syy + szz;
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < i; ++j) N[i][j] = N[j][i];
+  Vec4d h2 = h[0] * h[0];
+  for (int e = 1; e < 9; ++e) h2 += h[e] * h[e];
+  Vec4d p2 = {0, 0, 0, 0}, p3 = {0, 0, 0, 0};
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < 4; ++j) {
+      Vec4d n2 = N[i][0] * N[0][j];
+      for (int k = 1; k < 4; ++k) n2 += N[i][k] * N[k][j];
+      if (i == j) p2 += n2;
+      p3 += n2 * N[j][i];
+    }
+  }
+  const Vec4d c2 = -0.5 * p2, c1 = -p3 / 3.0;
+  // det N by the 2x2 minors of its first two and last two rows.
+  const Vec4d s0 = N[0][0] * N[1][1] - N[1][0] * N[0][1],
+              s1 = N[0][0] * N[1][2] - N[1][0] * N[0][2],
+              s2 = N[0][0] * N[1][3] - N[1][0] * N[0][3],
+              s3 = N[0][1] * N[1][2] - N[1][1] * N[0][2],
+              s4 = N[0][1] * N[1][3] - N[1][1] * N[0][3],
+              s5 = N[0][2] * N[1][3] - N[1][2] * N[0][3];
+  const Vec4d t5 = N[2][2] * N[3][3] - N[3][2] * N[2][3],
+              t4 = N[2][1] * N[3][3] - N[3][1] * N[2][3],
+              t3 = N[2][1] * N[3][2] - N[3][1] * N[2][2],
+              t2 = N[2][0] * N[3][3] - N[3][0] * N[2][3],
+              t1 = N[2][0] * N[3][2] - N[3][0] * N[2][2],
+              t0 = N[2][0] * N[3][1] - N[3][0] * N[2][1];
+  const Vec4d c0 = s0 * t5 - s1 * t4 + s2 * t3 + s3 * t2 - s4 * t1 + s5 * t0;
+  Vec4d l;
+  sqrt4(3.0 * h2, &l);
+  const Vec4d l0 = l, zero = {0, 0, 0, 0};
+  // A lane stops at its first failed test, as fit_rotation's loop breaks.
+  Vec4m alive = ~(zero > zero);
+  for (int it = 0; it < 100; ++it) {
+    const Vec4d P = ((l * l + c2) * l + c1) * l + c0;
+    const Vec4d dP = (4.0 * l * l + 2.0 * c2) * l + c1;
+    const Vec4d step = P / dP;
+    alive = alive & (dP > zero) & (step > 1e-15 * l0);
+    if (!any_lane(alive)) break;
+    l = MD_SELECT4(alive, l - step, l);
+  }
+  Vec4d A[4][4];
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) A[i][j] = i == j ? N[i][j] - l : N[i][j];
+  // (An output argument: returning a vector warns about the ABI in the baseline build.)
+  auto det3 = [&](int r0, int r1, int r2, int a, int b, int c, double sign, Vec4d* out) {
+    *out = sign * (A[r0][a] * (A[r1][b] * A[r2][c] - A[r1][c] * A[r2][b]) -
+                   A[r0][b] * (A[r1][a] * A[r2][c] - A[r1][c] * A[r2][a]) +
+                   A[r0][c] * (A[r1][a] * A[r2][b] - A[r1][b] * A[r2][a]));
+  };
+  Vec4d best[4] = {zero, zero, zero, zero}, best_n = zero;
+  for (int skip = 0; skip < 4; ++skip) {
+    int r[3], n = 0;
+    for (int i = 0; i < 4; ++i)
+      if (i != skip) r[n++] = i;
+    Vec4d v[4];
+    det3(r[0], r[1], r[2], 1, 2, 3, 1.0, &v[0]);
+    det3(r[0], r[1], r[2], 0, 2, 3, -1.0, &v[1]);
+    det3(r[0], r[1], r[2], 0, 1, 3, 1.0, &v[2]);
+    det3(r[0], r[1], r[2], 0, 1, 2, -1.0, &v[3]);
+    const Vec4d vn = v[0] * v[0] + v[1] * v[1] + v[2] * v[2] + v[3] * v[3];
+    const Vec4m better = vn > best_n;
+    for (int i = 0; i < 4; ++i) best[i] = MD_SELECT4(better, v[i], best[i]);
+    best_n = MD_SELECT4(better, vn, best_n);
+  }
+  Vec4d qn;
+  sqrt4(best_n, &qn);
+  const Vec4d cube = l0 * l0 * l0;
+  const double inf = std::numeric_limits<double>::infinity();
+  const Vec4m fast = (qn > 1e-3 * cube) & (qn < Vec4d{inf, inf, inf, inf});
+  const Vec4d w = best[0] / qn, x = best[1] / qn, y = best[2] / qn, z = best[3] / qn;
+  const Vec4d Rq[9] = {w * w + x * x - y * y - z * z, 2.0 * (x * y + w * z),
+                       2.0 * (x * z - w * y),         2.0 * (x * y - w * z),
+                       w * w - x * x + y * y - z * z, 2.0 * (y * z + w * x),
+                       2.0 * (x * z + w * y),         2.0 * (y * z - w * x),
+                       w * w - x * x - y * y + z * z};  // column-major, as h
+  Vec4d tr = Rq[0] * h[0];
+  for (int e = 1; e < 9; ++e) tr += Rq[e] * h[e];
+  for (int lane = 0; lane < 4; ++lane) {
+    if (!fast[lane]) {
+      ok[lane] = fit_rotation(H[lane], &R[lane], &trace[lane]);
+      continue;
+    }
+    for (int e = 0; e < 9; ++e) R[lane].data()[e] = Rq[e][lane];
+    trace[lane] = tr[lane];
+    ok[lane] = true;
+  }
+}
+void fit_rotations4_base(const Eigen::Matrix3d* H, Eigen::Matrix3d* R, double* trace, bool* ok) {
+  fit_rotations4_body(H, R, trace, ok);
+}
+#if MD_X86_DISPATCH
+MD_TARGET_AVX2 void fit_rotations4_avx2(const Eigen::Matrix3d* H, Eigen::Matrix3d* R, double* trace,
+                                        bool* ok) {
+  fit_rotations4_body(H, R, trace, ok);
+}
+#endif
+}  // namespace
+
+void fit_rotations4(const Eigen::Matrix3d* H, Eigen::Matrix3d* R, double* trace, bool* ok) {
+#if MD_X86_DISPATCH
+  if (cpu_has_avx2_fma()) return fit_rotations4_avx2(H, R, trace, ok);
+#endif
+  fit_rotations4_base(H, R, trace, ok);
+}
+
 Eigen::Matrix3d spd_log(const Eigen::Matrix3d& S) {
   Eigen::SelfAdjointEigenSolver<Eigen::Matrix3d> es(0.5 * (S + S.transpose()));
   const Eigen::Vector3d lam = es.eigenvalues();

@@ -1,10 +1,12 @@
 #include <gtest/gtest.h>
 
 #include <Eigen/Geometry>
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <random>
 #include <unsupported/Eigen/MatrixFunctions>
+#include <vector>
 
 #include "matdeform/transforms.hpp"
 #include "simd.hpp"
@@ -222,6 +224,108 @@ TEST(Transforms, FitRotationRefusesUndeterminedRotations) {
   ASSERT_TRUE(fit_rotation(3.5 * Q, &R, &trace));
   EXPECT_LT((R - Q).norm(), 1e-14);
   EXPECT_NEAR(trace, 10.5, 1e-13);
+}
+
+// The four-lane fit (the pyramid method's hot loop) gives each lane fit_rotation's answer, in
+// both kernel builds: the same acceptance, rotations and traces to round-off where the root
+// needs no refining, the very same bits where it does (those lanes are fit_rotation's own), and
+// a lane's result does not depend on the lanes beside it.
+TEST(Transforms, FitRotations4MatchesFitRotationLaneByLane) {
+  std::mt19937 rng(29);
+  std::normal_distribution<double> g;
+  auto rotation = [&]() {
+    return Eigen::Quaterniond(g(rng), g(rng), g(rng), g(rng)).normalized().toRotationMatrix();
+  };
+  std::vector<Eigen::Matrix3d> H;
+  std::vector<double> gap;  // the relative eigenvalue gap, for the tolerance
+  // generic, mirrored, planar; gaps either side of the 1e-3 where fit_rotation refines; refused
+  for (const double rel_gap : {0.0, 3e-2, 2e-3, 5e-4, 2e-5, 3e-7}) {
+    for (const double det : {1.0, -1.0}) {
+      for (const double scale : {1.0, 1e-9, 1e9}) {
+        for (int t = 0; t < 40; ++t) {
+          Eigen::Vector3d sig(1 + std::abs(g(rng)), 0.2 + std::abs(g(rng)), std::abs(g(rng)));
+          if (rel_gap > 0) {
+            sig = det > 0 ? Eigen::Vector3d(1, 0.7 * rel_gap, 0.3 * rel_gap)
+                          : Eigen::Vector3d(1, 1.3 * rel_gap, 0.3 * rel_gap);
+          }
+          const Eigen::Vector3d d(1, 1, det);
+          H.push_back(scale * rotation() * sig.asDiagonal() * d.asDiagonal() *
+                      rotation().transpose());
+          const Eigen::Vector3d sv = sig.cwiseAbs();
+          double s[3] = {sv(0), sv(1), sv(2)};
+          std::sort(s, s + 3);
+          gap.push_back((s[1] + det * s[0]) / s[2]);
+        }
+      }
+    }
+  }
+  const Eigen::Matrix3d rank1 = Eigen::Vector3d(1, 2, 3) * Eigen::RowVector3d(0.3, -1, 2);
+  Eigen::Matrix3d nan = Eigen::Matrix3d::Identity(), inf = nan;
+  nan(1, 2) = std::nan("");
+  inf(0, 1) = std::numeric_limits<double>::infinity();
+  for (const Eigen::Matrix3d& m :
+       {rank1, Eigen::Matrix3d(Eigen::Matrix3d::Zero()), nan, inf,
+        Eigen::Matrix3d(1e150 * rotation()), Eigen::Matrix3d(3.5 * rotation())}) {
+    H.push_back(m);
+    gap.push_back(0.1);
+  }
+  while (H.size() % 4) H.push_back(rotation()), gap.push_back(0.1);
+  const int n = static_cast<int>(H.size());
+  std::vector<Eigen::Matrix3d> R1(H.size());
+  std::vector<double> t1(H.size());
+  std::vector<char> ok1(H.size());
+  for (int i = 0; i < n; ++i) ok1[i] = fit_rotation(H[i], &R1[i], &t1[i]);
+  int refused = 0, refined = 0;
+  for (int i = 0; i < n; ++i) refused += !ok1[i], refined += ok1[i] && gap[i] < 1e-3;
+  EXPECT_GT(refused, 10);
+  EXPECT_GT(refined, 100);
+  const Eigen::Matrix3d sentinel = Eigen::Matrix3d::Constant(7);
+  for (const bool avx2 : {true, false}) {
+    const bool before = set_avx2_kernels_enabled(avx2);
+    std::vector<Eigen::Matrix3d> R4(H.size(), sentinel);
+    std::vector<double> t4(H.size(), 7);
+    for (int i = 0; i < n; i += 4) {
+      bool ok[4];
+      fit_rotations4(&H[i], &R4[i], &t4[i], ok);
+      for (int j = i; j < i + 4; ++j) {
+        ASSERT_EQ(ok[j - i], static_cast<bool>(ok1[j])) << j << " avx2 " << avx2;
+        if (!ok1[j]) {
+          EXPECT_EQ(R4[j], sentinel) << j;  // untouched, as fit_rotation leaves it
+          EXPECT_EQ(t4[j], 7) << j;
+          continue;
+        }
+        // both carry the root's round-off, eps over the gap squared (fit_rotation's comments)
+        EXPECT_LT((R4[j] - R1[j]).norm(), 1e-14 + 1e-15 / (gap[j] * gap[j]))
+            << j << " gap " << gap[j];
+        EXPECT_LE(std::abs(t4[j] - t1[j]), 1e-14 * std::abs(t1[j])) << j;
+        if (gap[j] < 1e-3) {  // refined: fit_rotation's own bits
+          EXPECT_EQ(R4[j], R1[j]) << j;
+        }
+      }
+    }
+    // Each lane alone, the others filled with a different matrix: the same bits.
+    for (int i = 0; i < n; i += 37) {
+      for (int lane = 0; lane < 4; ++lane) {
+        Eigen::Matrix3d Hs[4] = {H[(i + 5) % n], H[(i + 9) % n], H[(i + 13) % n], H[(i + 17) % n]};
+        Hs[lane] = H[i];
+        Eigen::Matrix3d Rs[4];
+        double ts[4];
+        bool oks[4];
+        fit_rotations4(Hs, Rs, ts, oks);
+        const int at = i - i % 4, me = i % 4;
+        Eigen::Matrix3d Rg[4];
+        double tg[4];
+        bool okg[4];
+        fit_rotations4(&H[at], Rg, tg, okg);
+        ASSERT_EQ(oks[lane], okg[me]);
+        if (oks[lane]) {
+          EXPECT_EQ(Rs[lane], Rg[me]) << i << " lane " << lane;
+          EXPECT_EQ(ts[lane], tg[me]);
+        }
+      }
+    }
+    set_avx2_kernels_enabled(before);
+  }
 }
 
 TEST(Transforms, BlendHalfwayIsHalfAngleAndGeometricMeanScale) {

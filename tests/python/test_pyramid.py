@@ -613,27 +613,32 @@ def test_a_rejected_exact_step_does_not_spend_a_live_update():
 
 
 def test_a_saddle_is_left_along_negative_curvature():
-    """A tube 8 radii long, end rings controlled, the top turned by 112.5 degrees: the uniform
-    twist is a saddle of the energy (docs/pyramid.md, torsion). Newton's method reaches it and
-    cannot stop there; with the positive semidefinite Hessian alone it crawled away by
-    round-off and had not converged after 100 iterations (150 degrees: 45). A step along the
-    exact Hessian's negative curvature, then L-BFGS again, converges within the default budget,
-    at a lower energy than the saddle's."""
+    """A tube 8 radii long, end rings controlled, the top turned by 112.5-151 degrees: the
+    uniform twist is a saddle of the energy (docs/pyramid.md, torsion). Newton's method reaches
+    it and cannot stop there; with the positive semidefinite Hessian alone it leaves only as
+    round-off grows (54-85 iterations per angle here, 265 in all). With a step along the exact
+    Hessian's negative curvature, then L-BFGS again, the four take 80 in all. Which way the
+    iterate leaves the saddle depends on round-off, so a single angle's count changes from
+    build to build (150 degrees: 5 to 29); the sum over four angles is the stable measure. Each
+    ends converged, below the uniform twist's energy."""
     v, f = shapes.tube(length=4.0, radius=0.5, n_around=16, n_along=40)
     lo, hi = shapes.end_faces(v, f, fraction=0.01)
     c_lo, c_hi = np.unique(f[lo]), np.unique(f[hi])
     con = np.concatenate([c_lo, c_hi])
     d = md.PyramidDeformer(v, f, con)
-    for deg, most in ((112.5, 100), (150.0, 20)):
+    total = 0
+    for deg in (112.5, 149.0, 150.0, 151.0):
         pos = v[con].copy()
         pos[len(c_lo) :] = pos[len(c_lo) :] @ rotation([1, 0, 0], np.radians(deg)).T
         d.deform(pos)
-        assert d.last_converged and d.last_iterations <= most, (deg, d.last_iterations)
+        assert d.last_converged, deg
+        total += d.last_iterations
         # the uniform twist (each ring turned by its share), near the saddle, is higher
         share = (v[:, 0] - v[:, 0].min()) / np.ptp(v[:, 0])
         turns = [rotation([1, 0, 0], np.radians(deg) * t) for t in share]
         uniform = np.einsum("nij,nj->ni", np.array(turns), v)
         assert d.last_energy < d.energy(uniform)[0], deg
+    assert total <= 160, total
 
 
 def test_no_iteration_raises_the_energy():

@@ -88,6 +88,11 @@ void polar_decompose(const Eigen::Matrix3d& M, Eigen::Matrix3d* S, Eigen::Matrix
 // ~1e-6 of sigma_1 (H of rank <= 1 or nearly so) or H is not finite: the caller then decides,
 // e.g. with an SVD. Accepted fits agree with the SVD's to ~eps over that relative gap.
 bool fit_rotation(const Eigen::Matrix3d& H, Eigen::Matrix3d* R, double* trace);
+// Four fits at once, each as fit_rotation's (to round-off; lanes do not affect each other): H
+// and R point to four matrices, trace and ok to four values; ok[i] is fit_rotation's return
+// value (false: R[i], trace[i] untouched). Lanes whose eigenvalue gap needs fit_rotation's
+// refinement are handed to it. Several times faster per fit than four fit_rotation calls.
+void fit_rotations4(const Eigen::Matrix3d* H, Eigen::Matrix3d* R, double* trace, bool* ok);
 
 // Log of a symmetric positive definite matrix and exp of a symmetric one (eigen-decomposition).
 // Both throw std::invalid_argument when an eigenvalue of the log is beyond +-kMaxLogStretch.
