@@ -282,6 +282,13 @@ MUTATIONS = [
         "the four-lane rotation fit reads the second matrix into the third lane",
     ),
     M(
+        "T9",
+        "native/src/transforms.cpp",
+        "(qn > 1e-3 * cube) & (qn < Vec4d{inf, inf, inf, inf})",
+        "(qn > 1e-3 * cube) & (qn > -Vec4d{inf, inf, inf, inf})",
+        "the four-lane rotation fit accepts an adjugate whose squared norm overflowed (R = 0)",
+    ),
+    M(
         "P4",
         "native/src/pyramid_coordinates.cpp",
         "weight[i] = w / length[i];",

@@ -97,7 +97,8 @@ void fit_pyramids(const Pyramids& P, int c0, int count, const double* X, double 
     }
     H[i] = f.H;
   }
-  for (int i = count; i < 4; ++i) H[i] = H[0];  // padding: lanes do not affect each other
+  // Padding: lanes do not affect each other, and a rotation never needs fit_rotation's slow path.
+  for (int i = count; i < 4; ++i) H[i] = Mat3::Identity();
   // Four at a time: the same rotation, to round-off, as one fit_rotation call each, and what a
   // pyramid gets does not depend on which others share its call (relabelling, thread counts).
   fit_rotations4(H, R, trace, ok);

@@ -619,7 +619,7 @@ def test_a_saddle_is_left_along_negative_curvature():
     round-off grows (54-85 iterations per angle here, 265 in all). With a step along the exact
     Hessian's negative curvature, then L-BFGS again, the four take 80 in all. Which way the
     iterate leaves the saddle depends on round-off, so a single angle's count changes from
-    build to build (150 degrees: 5 to 29); the sum over four angles is the stable measure. Each
+    build to build (150 degrees: 5 to 29), so the test bounds the sum over four angles. Each
     ends converged, below the uniform twist's energy."""
     v, f = shapes.tube(length=4.0, radius=0.5, n_around=16, n_along=40)
     lo, hi = shapes.end_faces(v, f, fraction=0.01)
