@@ -4,14 +4,18 @@
 #                                           Install), native core vendored in _vendor/
 #   dist/material_deform-<ver>.zip          Blender 4.2+ extension (manifest + matdeform wheel),
 #                                           built and validated with Blender's own extension tool
-# Both carry the same self-contained wheel: `auditwheel repair` copies CHOLMOD, its SuiteSparse
-# siblings, METIS, Debian's serial OpenBLAS (BLAS + LAPACK), libgfortran and libgomp into it
+# Both carry the same self-contained wheels, one per Python that Blender ships (3.11 for Blender
+# 4.1-5.0, 3.13 for 5.1 and later): `auditwheel repair` copies CHOLMOD, its SuiteSparse
+# siblings, METIS, Debian's serial OpenBLAS (BLAS + LAPACK), libgfortran and libgomp into them
 # (manylinux tag), so the zips run on Linux x86-64 machines without those libraries.
 # Env: PYTHON (a CPython 3.11, default .venv/bin/python or python3), MD_BLENDER_PYTHON (3.11),
+# MD_EXTRA_PYTHONS (default 3.13: the other Pythons' cores, built from their headers alone by
+# scripts/build_core_wheel.sh; empty: only PYTHON's),
 # BLENDER42 (a Blender >= 4.2 executable for the extension tool; without it the extension tool
-# runs inside PyPI's bpy: BPY_PYTHON, or .venv-bpy, created if missing), MD_WHEEL (use this
-# prebuilt matdeform wheel), MD_SYSTEM_LIBS=1 (no bundling: the wheel links the system's
-# SuiteSparse and BLAS, for distribution packages that depend on them).
+# runs inside PyPI's bpy: BPY_PYTHON, or .venv-bpy, created if missing), MD_WHEEL (use these
+# prebuilt matdeform wheels, space-separated, instead of building any), MD_SYSTEM_LIBS=1 (no
+# bundling: the wheels link the system's SuiteSparse and BLAS, for distribution packages that
+# depend on them).
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
@@ -21,9 +25,10 @@ if [[ -z "$PY" ]]; then
   [[ -n "${MD_WHEEL:-}" ]] || bash scripts/setup.sh
   if [[ -x .venv/bin/python ]]; then PY=.venv/bin/python; else PY=python3; fi
 fi
-# The native core is built for the Python of the target Blender: 3.11 for official builds and PyPI
-# bpy (3.4 to 5.0), 3.13 for Debian 13's Blender 4.3 (MD_BLENDER_PYTHON=3.13).
+# PYTHON builds the core for its own version (Debian 12's 3.11; 3.13 in the Debian 13 chroot,
+# MD_BLENDER_PYTHON=3.13), MD_EXTRA_PYTHONS for the others.
 BLENDER_PY="${MD_BLENDER_PYTHON:-3.11}"
+EXTRA_PYTHONS="${MD_EXTRA_PYTHONS-3.13}"
 "$PY" -c "import sys; v = '%d.%d' % sys.version_info[:2]; v == '$BLENDER_PY' or \
   sys.exit('need CPython $BLENDER_PY (the Blender ABI), got ' + v)"
 
@@ -32,7 +37,7 @@ BLENDER_PY="${MD_BLENDER_PYTHON:-3.11}"
   exit 2
 }
 
-# bundle_libs DIR : replaces the wheel in DIR by its `auditwheel repair`ed copy. The BLAS that is
+# bundle_libs DIR : replaces each wheel in DIR by its `auditwheel repair`ed copy. The BLAS that is
 # bundled is Debian's serial OpenBLAS whatever the alternatives point at (a threaded one would
 # fight Blender's threads); it picks its kernels for the CPU at run time (DYNAMIC_ARCH).
 AUDITWHEEL=auditwheel==6.8.2
@@ -51,10 +56,13 @@ bundle_libs() {
   [[ -e "$serial/libblas.so.3" && -e "$serial/liblapack.so.3" ]] \
     || { echo "no $serial: install Debian's libopenblas0-serial (scripts/setup.sh)" >&2; return 2; }
   mkdir -p "$dir/repaired"
-  PATH="$bin:$PATH" LD_LIBRARY_PATH="$serial${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" \
-    "$PY" -m auditwheel repair -w "$dir/repaired" "$dir"/matdeform-*.whl || return 2
+  local whl
+  for whl in "$dir"/matdeform-*.whl; do
+    PATH="$bin:$PATH" LD_LIBRARY_PATH="$serial${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}" \
+      "$PY" -m auditwheel repair -w "$dir/repaired" "$whl" || return 2
+  done
   mkdir -p "$BUILD/system"
-  mv "$dir"/matdeform-*.whl "$BUILD/system/"  # the unbundled wheel (test_blender_nosuitesparse)
+  mv "$dir"/matdeform-*.whl "$BUILD/system/"  # the unbundled wheels (test_blender_nosuitesparse)
   mv "$dir"/repaired/matdeform-*.whl "$dir/" && rmdir "$dir/repaired"
 }
 
@@ -62,21 +70,29 @@ BUILD=build/addon
 rm -rf "$BUILD" && mkdir -p "$BUILD/wheels" dist
 
 if [[ -n "${MD_WHEEL:-}" ]]; then
-  cp "$MD_WHEEL" "$BUILD/wheels/"
+  # shellcheck disable=SC2086 # a list of paths
+  cp $MD_WHEEL "$BUILD/wheels/"
 else
   iso=()  # reuse the project's build tools (and build/ cache) when they are installed
   "$PY" -c "import scikit_build_core, pybind11" 2>/dev/null && iso=(--no-build-isolation)
   "$PY" -m pip wheel -q --no-deps "${iso[@]}" -w "$BUILD/wheels" "$ROOT"
+  # the other Pythons' bindings link the core that wheel's build just compiled
+  core="$(ls -t build/cp"${BLENDER_PY/./}"-*/native/libmatdeform_core.a 2>/dev/null | head -n1)"
+  for v in $EXTRA_PYTHONS; do
+    [[ "$v" == "$BLENDER_PY" ]] && continue
+    echo "[core] CPython $v"
+    PYTHON="$PY" MD_PREBUILT_CORE="$core" bash scripts/build_core_wheel.sh "$v" "$BUILD/wheels" \
+      || exit 2
+  done
 fi
 # Only a plain linux_* wheel is repaired here: a manylinux one already is, and wheels of other
 # platforms (MD_WHEEL) are bundled by their own tools (delvewheel, delocate: docs/addon.md).
 if [[ "${MD_SYSTEM_LIBS:-0}" != 1 ]] && compgen -G "$BUILD/wheels/*-linux_*.whl" >/dev/null; then
   bundle_libs "$BUILD/wheels"
 fi
-WHEEL="$(ls "$BUILD"/wheels/matdeform-*.whl | head -n1)"
-echo "wheel: $WHEEL"
+echo "wheels: $(cd "$BUILD/wheels" && echo matdeform-*.whl)"
 
-"$PY" - "$ROOT" "$WHEEL" "$BUILD" <<'PYEOF'
+"$PY" - "$ROOT" "$BUILD" <<'PYEOF'
 import ctypes
 import json
 import re
@@ -85,13 +101,15 @@ import sys
 import zipfile
 from pathlib import Path
 
-root, wheel, build = Path(sys.argv[1]), Path(sys.argv[2]), Path(sys.argv[3])
+root, build = Path(sys.argv[1]), Path(sys.argv[2])
+wheels = sorted((build / "wheels").glob("matdeform-*.whl"))
 src = root / "addon" / "material_deform"
 version = re.search(r'^version = "([^"]+)"', (src / "blender_manifest.toml").read_text(), re.M)[1]
 skip = shutil.ignore_patterns("__pycache__", "*.pyc", "_vendor")
 
-# legacy add-on: package folder with the wheel's contents under _vendor/ (its dist-info too:
-# register() reads the wheel's tags from it to check the platform)
+# legacy add-on: package folder with the wheels' contents under _vendor/ (their dist-info too:
+# register() reads the tags from it to check the platform). The wheels differ only in their
+# _core.cpython-3XX-*.so, which sit side by side: each Python imports its own.
 legacy = build / "legacy" / "material_deform"
 shutil.copytree(src, legacy, ignore=skip)
 # the farm job template and its tasks' script (farm/), which Write Farm Bake Job copies
@@ -99,14 +117,33 @@ farm_files = [root / "farm" / "material_deform_bake.yaml", root / "farm" / "mate
 for f in farm_files:
     shutil.copy(f, legacy / f.name)
 (legacy / "blender_manifest.toml").unlink()
-with zipfile.ZipFile(wheel) as whl:
-    for name in whl.namelist():
-        top = name.split("/")[0]
-        if top in ("matdeform", "matdeform.libs") or top.endswith(".dist-info"):
+tags = []
+for wheel in wheels:
+    with zipfile.ZipFile(wheel) as whl:
+        for name in whl.namelist():
+            top = name.split("/")[0]
+            if name.endswith("/"):
+                continue  # a folder: made by the extraction of its files
+            if top.endswith(".dist-info"):
+                if name.endswith("/WHEEL"):
+                    text = whl.read(name).decode()
+                    tags += [t for t in re.findall(r"^Tag: (.*)$", text, re.M) if t not in tags]
+                if (legacy / "_vendor" / name).exists():
+                    continue  # the first wheel's metadata; the tags of all are merged below
+            elif top not in ("matdeform", "matdeform.libs"):
+                continue
+            elif (legacy / "_vendor" / name).exists():
+                same = (legacy / "_vendor" / name).read_bytes() == whl.read(name)
+                assert same, f"{wheel.name}: {name} differs from another wheel's"
+                continue
             whl.extract(name, legacy / "_vendor")
+(info,) = (legacy / "_vendor").glob("*.dist-info/WHEEL")
+text = re.sub(r"^Tag: .*\n", "", info.read_text(), flags=re.M)
+info.write_text(text + "".join(f"Tag: {t}\n" for t in tags))
+print(f"legacy core tags: {tags}")
 
 # A bundled BLAS must be the serial OpenBLAS (see bundle_libs).
-if "manylinux" in wheel.name:
+if any("manylinux" in w.name for w in wheels):
     blas = sorted((legacy / "_vendor" / "matdeform.libs").glob("libopenblas*.so*"))
     assert len(blas) == 1, f"expected one bundled OpenBLAS, found {blas}"
     lib = ctypes.CDLL(str(blas[0]))
@@ -143,12 +180,13 @@ shutil.copytree(src, ext, ignore=skip)
 for f in farm_files:
     shutil.copy(f, ext / f.name)
 (ext / "wheels").mkdir()
-shutil.copy(wheel, ext / "wheels" / wheel.name)
-# platforms: what the wheel is built for, and nothing else (Blender refuses the others)
+for wheel in wheels:
+    shutil.copy(wheel, ext / "wheels" / wheel.name)
+# platforms: what the wheels are built for, and nothing else (Blender refuses the others)
 arch = {"x86_64": "x64", "amd64": "x64", "aarch64": "arm64", "arm64": "arm64"}
 tag = r"(?:many)?linux(?:_\d+_\d+|1|2010|2014)?_(\w+)|win_(\w+)|macosx_\d+_\d+_(\w+)"
 platforms = set()
-for plat in wheel.stem.split("-")[-1].split("."):
+for plat in {p for w in wheels for p in w.stem.split("-")[-1].split(".")}:
     m = re.fullmatch(tag, plat)
     assert m, f"cannot tell the Blender platform of wheel tag {plat}"
     if m[1] or m[2]:
@@ -157,7 +195,8 @@ for plat in wheel.stem.split("-")[-1].split("."):
         both = m[3] == "universal2"
         platforms |= {"macos-x64", "macos-arm64"} if both else {"macos-" + arch[m[3]]}
 manifest = (ext / "blender_manifest.toml").read_text()
-manifest = re.sub(r"^wheels = .*$", f'wheels = ["./wheels/{wheel.name}"]', manifest, flags=re.M)
+listed = ", ".join(f'"./wheels/{w.name}"' for w in wheels)
+manifest = re.sub(r"^wheels = \[[^\]]*\]", f"wheels = [{listed}]", manifest, flags=re.M)
 listed = ", ".join(f'"{p}"' for p in sorted(platforms))
 manifest = re.sub(r"^platforms = .*$", f"platforms = [{listed}]", manifest, flags=re.M)
 print(f"extension platforms: {sorted(platforms)}")

@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Run the add-on test suite inside Debian's Blender (3.4), with the PyPI bpy module (4.5 LTS; 4.2.0,
 # the oldest Blender the extension supports, MD_BPY42=0 skips it; plus 5.0 if MD_BPY5=1) and
-# inside Debian 13's Blender 4.3 in a chroot (as root; MD_DEBIAN13=0 skips it), installing
+# inside Debian 13's Blender 4.3 in a chroot, then PyPI's bpy 5.3 (Python 3.13) in the same chroot
+# with the shipped zips (as root; MD_DEBIAN13=0 skips both, MD_BPY53=0 the second), installing
 # whatever is missing; then, as root, the shipped extension zip in a Debian 12 chroot without
 # SuiteSparse, BLAS or OpenMP (MD_NOSUITESPARSE=0 skips it). Exit status: non-zero if any run
 # fails.
@@ -53,6 +54,11 @@ fi
 # A real Blender >= 4.2 executable: Debian 13's 4.3 in a chroot (also runs the extension tool)
 if [[ "${MD_DEBIAN13:-1}" == 1 ]]; then
   run "Blender 4.3 (Debian 13 chroot)" bash scripts/test_blender_debian13.sh "$@"
+  # today's Blender: 5.1-5.3 run Python 3.13, and only the shipped zips show that they load there
+  if [[ "${MD_BPY53:-1}" == 1 ]]; then
+    run "bpy 5.3.0 (PyPI, Python 3.13, Debian 13 chroot), shipped zips" \
+      bash scripts/test_blender_debian13.sh --bpy 5.3.0 "$@"
+  fi
 fi
 # The shipped zip where SuiteSparse, BLAS and OpenMP are not installed, against the host's numbers
 if [[ "${MD_NOSUITESPARSE:-1}" == 1 ]]; then

@@ -7,14 +7,19 @@
 #      what that flag is for, and this keeps it tested (the shipped, bundled zip is step 2);
 #   2. `extension validate` the zip that ships (dist/, Python 3.11 wheel) as well;
 #   3. run the Blender test suite (tests/blender), including installing both zips.
+# With --bpy VERSION instead: the suite in PyPI's bpy VERSION (5.1 and later need Python 3.13,
+# which Debian 12 lacks and Debian 13 has), against the zips that ship (dist/): the core is
+# imported from the legacy zip's _vendor and the install tests install both zips.
 # Needs root (debootstrap, chroot); without it, exits 77 (skipped). Usage:
-#   scripts/test_blender_debian13.sh [pytest args]
+#   scripts/test_blender_debian13.sh [--bpy VERSION] [pytest args]
 set -euo pipefail
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$ROOT"
 CH="${MD_DEBIAN13_DIR:-$ROOT/.cache/debian13}"
 MIRROR="${MD_DEBIAN_MIRROR:-http://deb.debian.org/debian}"
-PKGS=(blender python3-numpy python3-pytest libegl1 libegl-mesa0 libgl1-mesa-dri
+BPY=""
+if [[ "${1:-}" == --bpy ]]; then BPY=$2; shift 2; fi
+PKGS=(blender python3-numpy python3-pytest python3-venv libegl1 libegl-mesa0 libgl1-mesa-dri
   gcc g++ libc6-dev cmake ninja-build python3-dev python3-pip python3-pybind11 pybind11-dev
   python3-scikit-build-core libeigen3-dev libsuitesparse-dev libmeshoptimizer-dev)
 
@@ -60,19 +65,39 @@ done | tar --null -T - -cf - | tar -xf - -C "$CH/proj"
 mkdir -p "$CH/proj/shipped"
 shopt -s nullglob
 shipped=(dist/material_deform-*[0-9].zip)
-if [[ ${#shipped[@]} -eq 0 ]]; then
-  echo "no extension zip in dist/ to validate (run scripts/build_addon.sh first)" >&2
+legacy=(dist/material_deform-*-legacy.zip)
+if [[ ${#shipped[@]} -eq 0 || ${#legacy[@]} -eq 0 ]]; then
+  echo "no add-on zips in dist/ to test (run scripts/build_addon.sh first)" >&2
   exit 2
 fi
-cp "${shipped[@]}" "$CH/proj/shipped/"
+cp "${shipped[@]}" "${legacy[@]}" "$CH/proj/shipped/"
+
+if [[ -n "$BPY" ]]; then
+  if ! in_chroot /opt/bpy/bin/python -c "import bpy, pytest, numpy
+assert bpy.app.version_string.startswith('${BPY%.*}'), bpy.app.version_string" 2>/dev/null; then
+    echo "[debian13] pip install bpy==$BPY pytest into /opt/bpy ($(in_chroot python3 -V))"
+    rm -rf "$CH/opt/bpy"
+    in_chroot python3 -m venv /opt/bpy
+    cp /etc/ssl/certs/ca-certificates.crt "$CH/etc/md-host-ca.crt"
+    in_chroot env PIP_CERT=/etc/md-host-ca.crt PIP_DEFAULT_TIMEOUT=180 \
+      /opt/bpy/bin/pip install -q "bpy==$BPY" pytest >"$CH.pip.log" 2>&1 \
+      || { tail -20 "$CH.pip.log"; exit 2; }
+  fi
+  (cd "$CH/proj/shipped" && python3 -m zipfile -e "${legacy[0]##*/}" legacy)
+  echo "[debian13] bpy $BPY, Python $(in_chroot /opt/bpy/bin/python -c 'import sys; print(sys.version.split()[0])'): tests/blender with the shipped zips"
+  in_chroot env MD_TEST_SYS_PATH=/proj/shipped/legacy/material_deform/_vendor MD_DIST=/proj/shipped \
+    sh -c 'cd /proj && exec /opt/bpy/bin/python -m pytest -p no:cacheprovider tests/blender "$@"' \
+    sh -q "$@"
+  exit
+fi
 
 echo "[debian13] $(in_chroot blender --version 2>/dev/null | head -n1): build_addon.sh"
-in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 MD_SYSTEM_LIBS=1 \
+in_chroot sh -c 'cd /proj && PYTHON=python3 MD_BLENDER_PYTHON=3.13 MD_EXTRA_PYTHONS= MD_SYSTEM_LIBS=1 \
   BLENDER42=/usr/bin/blender bash scripts/build_addon.sh' >"$CH/proj/build_addon.log" 2>&1 \
   || { cat "$CH/proj/build_addon.log"; exit 2; }
 grep -E "^(created|building|extension|legacy)|Success|ERROR|FATAL" "$CH/proj/build_addon.log" || true
 
-for z in "${shipped[@]##*/}"; do
+for z in "${shipped[@]##*/}"; do  # the extension zips
   echo "[debian13] extension validate shipped/$z"
   rc=0
   out="$(in_chroot blender --factory-startup --command extension validate "/proj/shipped/$z" \

@@ -20,17 +20,19 @@ _ARCH = {"x86_64": "x86-64", "amd64": "x86-64", "aarch64": "arm64", "arm64": "ar
 
 
 def wheel_tags(addon_dir: str = HERE) -> list[str]:
-    """The bundled wheel's tags as ``python-abi-platform`` strings, e.g.
-    ``["cp311-cp311-manylinux_2_35_x86_64"]``; [] when no wheel is bundled (a source tree)."""
+    """The tags of every bundled core as ``python-abi-platform`` strings, e.g.
+    ``["cp311-cp311-manylinux_2_35_x86_64", "cp313-cp313-manylinux_2_35_x86_64"]``; [] when no
+    wheel is bundled (a source tree)."""
+    tags: list[str] = []
     for info in sorted(glob.glob(os.path.join(addon_dir, "_vendor", "*.dist-info", "WHEEL"))):
         with open(info, encoding="utf-8") as f:
-            return [line.split(":", 1)[1].strip() for line in f if line.startswith("Tag:")]
+            tags += [line.split(":", 1)[1].strip() for line in f if line.startswith("Tag:")]
     for whl in sorted(glob.glob(os.path.join(addon_dir, "wheels", "matdeform-*.whl"))):
         py, abi, plat = os.path.basename(whl)[: -len(".whl")].split("-")[-3:]
         # compressed tag sets: "manylinux_2_17_x86_64.manylinux2014_x86_64" is two tags
         pys, abis, plats = py.split("."), abi.split("."), plat.split(".")
-        return [f"{p}-{a}-{q}" for p in pys for a in abis for q in plats]
-    return []
+        tags += [f"{p}-{a}-{q}" for p in pys for a in abis for q in plats]
+    return list(dict.fromkeys(tags))
 
 
 def current() -> dict:
@@ -124,11 +126,20 @@ def problem(tags: list[str], here: dict) -> str | None:
             return None
     if not tags:
         return None
+    built = []  # one phrase per Python and platform, in the order bundled
+    for tag in tags:
+        phrase = describe_tag(tag)
+        if phrase not in built:
+            built.append(phrase)
     return (
-        f"its native core is built for {describe_tag(tags[0])}, and this Blender has "
+        f"its native core is built for {_join(built)}, and this Blender has "
         f"{describe_current(here)}. Install a build of Material Deform made for this platform "
         "(docs/addon.md, 'Platforms')."
     )
+
+
+def _join(items: list[str]) -> str:
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " and " + items[-1]
 
 
 def problem_here(addon_dir: str = HERE) -> str | None:

@@ -55,7 +55,8 @@ def constraint_set(obj, anchors, moves):
 
 
 def motion(empty, before):
-    return np.array(empty.matrix_world) @ np.linalg.inv(before)
+    # float64 as the add-on computes it (np.array of a Matrix is float32 from Blender 5.0 on)
+    return np.array(empty.matrix_world, np.float64) @ np.linalg.inv(before)
 
 
 def bind(obj):
@@ -63,7 +64,7 @@ def bind(obj):
 
 
 def pose(left, right):
-    b = [np.array(a.empty.matrix_world) for a in (left, right)]
+    b = [np.array(a.empty.matrix_world, np.float64) for a in (left, right)]
     left.empty.location.x += 0.4
     right.empty.location.x -= 0.3
     right.empty.location.z += 0.2

@@ -112,6 +112,26 @@ def test_platform_check_reads_the_tags_of_either_zip(tmp_path):
     assert pc.wheel_tags(str(tmp_path / "legacy")) == ["cp313-cp313-linux_x86_64"]
 
 
+def test_platform_check_reads_every_bundled_core(tmp_path):
+    """A zip carries one core per Python that Blender ships: every wheel's tags count."""
+    ext = tmp_path / "ext" / "wheels"
+    ext.mkdir(parents=True)
+    for cp in ("cp311", "cp313"):
+        (ext / f"matdeform-0.1.0-{cp}-{cp}-manylinux_2_35_x86_64.whl").touch()
+    tags = pc.wheel_tags(str(ext.parent))
+    assert tags == ["cp311-cp311-manylinux_2_35_x86_64", "cp313-cp313-manylinux_2_35_x86_64"]
+    info = tmp_path / "legacy" / "_vendor" / "matdeform-0.1.0.dist-info"
+    info.mkdir(parents=True)
+    (info / "WHEEL").write_text("Tag: " + "\nTag: ".join(tags) + "\n")
+    assert pc.wheel_tags(str(tmp_path / "legacy")) == tags
+    for py in ((3, 11), (3, 13)):
+        assert pc.problem(tags, {**LINUX, "python": py}) is None, py
+    why = pc.problem(tags, {**LINUX, "python": (3, 10)})
+    both = "CPython 3.11 on Linux x86-64 (glibc 2.35 or newer) and CPython 3.13 on Linux"
+    assert f"built for {both}" in why, why
+    assert "this Blender has Python 3.10" in why
+
+
 def test_platform_check_accepts_only_what_the_core_was_built_for():
     ok = ["cp311-cp311-manylinux_2_35_x86_64"]
     assert pc.problem(ok, LINUX) is None
