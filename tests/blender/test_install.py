@@ -74,6 +74,30 @@ def test_install_zip(tmp_path, kind):
     _run(_zip(kind), tmp_path)
 
 
+def test_the_zips_carry_a_core_for_each_python_blender_ships():
+    """Blender 4.1-5.0 run CPython 3.11, 5.1-5.3 CPython 3.13: both zips carry both cores (a
+    distribution's MD_SYSTEM_LIBS build carries its own Python's alone)."""
+    with zipfile.ZipFile(DIST / f"material_deform-{VERSION}.zip") as z:
+        manifest = z.read("blender_manifest.toml").decode()
+        listed = re.findall(r'"\./(wheels/matdeform-[^"]+\.whl)"', manifest)
+        assert set(listed) <= set(z.namelist()), listed
+    if not all("manylinux" in w for w in listed):
+        pytest.skip("a build against the system's libraries (MD_SYSTEM_LIBS=1)")
+    assert sorted(w.split("-")[2] for w in listed) == ["cp311", "cp313"], listed
+    with zipfile.ZipFile(DIST / f"material_deform-{VERSION}-legacy.zip") as z:
+        names = z.namelist()
+        wheel_info = z.read(_one(names, r".*\.dist-info/WHEEL")).decode()
+    tags = re.findall(r"^Tag: (.*)$", wheel_info, re.M)
+    for cp in ("311", "313"):
+        _one(names, rf"material_deform/_vendor/matdeform/_core\.cpython-{cp}-x86_64-linux-gnu\.so")
+        assert any(t.startswith(f"cp{cp}-cp{cp}-manylinux_") for t in tags), tags
+
+
+def _one(names, pattern):
+    (name,) = [n for n in names if re.fullmatch(pattern, n)]
+    return name
+
+
 def _rewritten(z, out, member, line, new):
     """A copy of zip z at out in which the lines matching regex `line` of the members whose
     names match regex `member` become `new`."""
