@@ -21,7 +21,9 @@ BPY=""
 if [[ "${1:-}" == --bpy ]]; then BPY=$2; shift 2; fi
 PKGS=(blender python3-numpy python3-pytest python3-venv libegl1 libegl-mesa0 libgl1-mesa-dri
   gcc g++ libc6-dev cmake ninja-build python3-dev python3-pip python3-pybind11 pybind11-dev
-  python3-scikit-build-core libeigen3-dev libsuitesparse-dev libmeshoptimizer-dev)
+  python3-scikit-build-core libeigen3-dev libsuitesparse-dev libmeshoptimizer-dev
+  libx11-6 libxrender1 libxfixes3 libxi6 libxkbcommon0 libxext6 libsm6 libice6 libgl1)
+# (the last line: what PyPI's bpy links beyond its own lib/ and Blender's package)
 
 if [[ "$(id -u)" -ne 0 ]]; then
   echo "SKIPPED: the Debian 13 chroot needs root" >&2
@@ -73,6 +75,8 @@ fi
 cp "${shipped[@]}" "${legacy[@]}" "$CH/proj/shipped/"
 
 if [[ -n "$BPY" ]]; then
+  # bpy 5.x reads /proc/self/maps (its SYCL runtime aborts without it); the 4.3 executable not
+  mountpoint -q "$CH/proc" || { mount -t proc proc "$CH/proc" && trap 'umount "$CH/proc"' EXIT; }
   if ! in_chroot /opt/bpy/bin/python -c "import bpy, pytest, numpy
 assert bpy.app.version_string.startswith('${BPY%.*}'), bpy.app.version_string" 2>/dev/null; then
     echo "[debian13] pip install bpy==$BPY pytest into /opt/bpy ($(in_chroot python3 -V))"
@@ -83,9 +87,11 @@ assert bpy.app.version_string.startswith('${BPY%.*}'), bpy.app.version_string" 2
       /opt/bpy/bin/pip install -q "bpy==$BPY" pytest >"$CH.pip.log" 2>&1 \
       || { tail -20 "$CH.pip.log"; exit 2; }
   fi
-  (cd "$CH/proj/shipped" && python3 -m zipfile -e "${legacy[0]##*/}" legacy)
+  # the shipped legacy zip where the tests look for a built add-on (the 4.3 run rebuilds it)
+  rm -rf "$CH/proj/build/addon/legacy" && mkdir -p "$CH/proj/build/addon/legacy"
+  python3 -m zipfile -e "$CH/proj/shipped/${legacy[0]##*/}" "$CH/proj/build/addon/legacy"
   echo "[debian13] bpy $BPY, Python $(in_chroot /opt/bpy/bin/python -c 'import sys; print(sys.version.split()[0])'): tests/blender with the shipped zips"
-  in_chroot env MD_TEST_SYS_PATH=/proj/shipped/legacy/material_deform/_vendor MD_DIST=/proj/shipped \
+  in_chroot env MD_TEST_SYS_PATH=/proj/build/addon/legacy/material_deform/_vendor MD_DIST=/proj/shipped \
     sh -c 'cd /proj && exec /opt/bpy/bin/python -m pytest -p no:cacheprovider tests/blender "$@"' \
     sh -q "$@"
   exit
