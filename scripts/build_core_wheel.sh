@@ -14,6 +14,9 @@ cd "$ROOT"
 . scripts/lib.sh
 ver=$1 out=$2
 PY="${PYTHON:-$ROOT/.venv/bin/python}"
+# absolute, not resolved (a venv's python is a symlink): CMake runs the tools from other folders
+if [[ "$PY" == */* ]]; then PY="$(realpath -s "$PY")"; else PY="$(command -v "$PY")"; fi
+core="${MD_PREBUILT_CORE:+$(realpath "$MD_PREBUILT_CORE")}"
 CMAKE="$(dirname "$PY")/cmake"
 [[ -x "$CMAKE" ]] || CMAKE=cmake
 includes="$(python_headers "$ver")"
@@ -29,7 +32,7 @@ ninja="$(dirname "$PY")/ninja"
 [[ -n "$ninja" && ! -f "$dir/CMakeCache.txt" ]] && gen=(-G Ninja -DCMAKE_MAKE_PROGRAM="$ninja")
 "$CMAKE" -S . -B "$dir" "${gen[@]}" -DCMAKE_BUILD_TYPE=Release -DMATDEFORM_BUILD_TESTS=OFF \
   -DMATDEFORM_BUILD_PYTHON=ON -DMATDEFORM_PYTHON_INCLUDE_DIRS="$includes" \
-  -DMATDEFORM_PYTHON_EXT_SUFFIX="$suffix" -DMATDEFORM_PREBUILT_CORE="${MD_PREBUILT_CORE:-}" \
+  -DMATDEFORM_PYTHON_EXT_SUFFIX="$suffix" -DMATDEFORM_PREBUILT_CORE="$core" \
   -Dpybind11_DIR="$("$PY" -m pybind11 --cmakedir)" \
   >"$dir/configure.log" 2>&1 || { cat "$dir/configure.log"; exit 2; }
 "$CMAKE" --build "$dir" --target _core -j "${JOBS:-2}" >"$dir/build.log" 2>&1 \
