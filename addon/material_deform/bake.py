@@ -88,8 +88,9 @@ def bake(obj, scene, frames, progress=None, unsettled=None) -> list[str]:
 
 def cache_path(obj, path: str) -> tuple[str, str]:
     """(path as stored in the modifier, absolute path) of the point cache; '' means
-    '//<object name>.pc2'. A relative path needs a saved .blend."""
-    path = path or f"//{bridge.clean_name(obj.name)}.pc2"
+    '//<blend name>_<object name>.pc2', so that shots in one folder keep their own caches
+    (bridge.object_file_name). A relative path needs a saved .blend."""
+    path = path or f"//{bridge.object_file_name(obj)}.pc2"
     if path.startswith("//") and not bridge.blend_saved():
         raise BindError(
             f"Save the .blend first: the cache path '{path}' is relative to it (or pick an "

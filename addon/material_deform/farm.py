@@ -57,7 +57,7 @@ def run_chunk(blend: str, obj_name: str, frames_expr: str, output: str) -> str:
     (replacing that chunk if it exists; atomically). Returns its path."""
     frames, first, last = _frames(frames_expr)
     obj, scene = _open(blend, obj_name)
-    path = farm_job.chunk_path(output, obj.name, first, last)
+    path = farm_job.chunk_path(output, obj.name, first, last, bridge.object_names())
     os.makedirs(os.path.dirname(path), exist_ok=True)
     _say(f"baking '{obj.name}' ({settings(obj).method}) frames {first}-{last} into {path}")
     unsettled: list = []
@@ -80,9 +80,10 @@ def run_merge(blend: str, obj_name: str, frames_expr: str, output: str) -> tuple
     merged cache, the saved copy)."""
     _frames_list, first, last = _frames(frames_expr)
     obj, scene = _open(blend, obj_name)
-    merged = farm_job.merge(output, obj.name, first, last, len(obj.data.vertices))
+    others = bridge.object_names()
+    merged = farm_job.merge(output, obj.name, first, last, len(obj.data.vertices), others)
     _say(f"merged frames {first}-{last} of '{obj.name}' into {merged}")
-    copy = farm_job.baked_blend_path(output, blend, obj.name)
+    copy = farm_job.baked_blend_path(output, blend, obj.name, others)
     # Relative to the file as it is now; saving with relative_remap makes it '//<name>.pc2',
     # next to the copy, so the output folder can move (or come back from a farm) as a whole.
     bake.use_point_cache(obj, scene, bpy.path.relpath(merged), first)
@@ -201,7 +202,7 @@ class OBJECT_OT_material_deform_farm_job(_ObjectOperator, bpy.types.Operator):
         if not props.is_property_set("frame_end"):
             self.frame_end = s.bake_end
         if not self.directory:
-            self.directory = f"//farm_{bridge.clean_name(obj.name)}"
+            self.directory = f"//farm_{bridge.object_file_name(obj)}"
         output = os.path.normpath(bridge.abspath(self.directory))
         params = farm_job.job_parameters(
             bpy.data.filepath,
@@ -215,7 +216,7 @@ class OBJECT_OT_material_deform_farm_job(_ObjectOperator, bpy.types.Operator):
         )
         folder = os.path.join(output, "job")
         cmds = farm_job.write_bundle(folder, params)
-        return folder, cmds, farm_job.find_chunks(output, obj.name)
+        return folder, cmds, farm_job.find_chunks(output, obj.name, bridge.object_names())
 
 
 classes = (OBJECT_OT_material_deform_farm_job,)

@@ -3,13 +3,15 @@ merge into one .pc2, and the job bundle (docs/farm.md). Importable without Blend
 (``scripts/farm_bake.py``, ``tests/python``).
 
 A farm bake runs one background Blender per chunk of frames (``farm.py``); each writes
-``<output>/chunks/<object>.<first>-<last>.pc2``. The merge step writes ``<output>/<object>.pc2``
+``<output>/chunks/<object>.<first>-<last>.pc2`` (``<object>``: :func:`file_name`). The merge
+step writes ``<output>/<object>.pc2``
 only when the chunks cover the frame range exactly once with one point count: never a partial
 cache.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -55,33 +57,52 @@ def contiguous(frames: list[int]) -> tuple[int, int]:
     return frames[0], frames[-1]
 
 
-def clean_name(name: str) -> str:
-    """A file name for an object name, as Blender's ``bpy.path.clean_name`` makes it for the
-    single-process bake (ASCII letters, digits and '-' kept, everything else '_')."""
-    return re.sub(r"[^0-9A-Za-z-]", "_", name) or "_"
+# Names Windows keeps for devices, with any extension ("CON.pc2" opens the console).
+_RESERVED = {"CON", "PRN", "AUX", "NUL", *(f"{d}{i}" for d in ("COM", "LPT") for i in range(1, 10))}
 
 
-def chunk_path(output: str, obj_name: str, first: int, last: int) -> str:
-    name = f"{clean_name(obj_name)}.{first:04d}-{last:04d}.pc2"
+def file_name(name: str, others=()) -> str:
+    """The file-name stem for the object called ``name``, which no other object name gives on
+    any system. Letters of any script, digits, '-', '_' and '.' are kept, everything else becomes
+    '_'. When that changed the name, or the name is one Windows reserves, ends in '.', or equals
+    one of ``others`` (the other objects' names) but for case (Windows and macOS ignore case),
+    the first 8 hex digits of the name's SHA-1 follow: 'Arm.L', 'Arm L' and 'Arm_L' give
+    'Arm.L', 'Arm_L-<hash>' and 'Arm_L'."""
+    kept = "".join(c if c.isalnum() or c in "-_." else "_" for c in name) or "_"
+    folded = name.casefold()
+    if (
+        kept != name
+        or kept.endswith(".")
+        or kept.split(".")[0].upper() in _RESERVED
+        or any(o != name and o.casefold() == folded for o in others)
+    ):
+        kept += "-" + hashlib.sha1(name.encode("utf-8")).hexdigest()[:8]
+    return kept
+
+
+def chunk_path(output: str, obj_name: str, first: int, last: int, others=()) -> str:
+    name = f"{file_name(obj_name, others)}.{first:04d}-{last:04d}.pc2"
     return os.path.join(output, CHUNKS, name)
 
 
-def merged_path(output: str, obj_name: str) -> str:
-    return os.path.join(output, f"{clean_name(obj_name)}.pc2")
+def merged_path(output: str, obj_name: str, others=()) -> str:
+    return os.path.join(output, f"{file_name(obj_name, others)}.pc2")
 
 
-def baked_blend_path(output: str, blend: str, obj_name: str) -> str:
+def baked_blend_path(output: str, blend: str, obj_name: str, others=()) -> str:
     """The saved copy of the .blend that reads the merged cache (one per baked object)."""
     stem = os.path.splitext(os.path.basename(blend))[0]
-    return os.path.join(output, f"{stem}_{clean_name(obj_name)}_baked.blend")
+    return os.path.join(output, f"{stem}_{file_name(obj_name, others)}_baked.blend")
 
 
-def find_chunks(output: str, obj_name: str) -> list[tuple[int, int, str]]:
-    """(first, last, path) of every chunk file of the object in the output folder, sorted."""
+def find_chunks(output: str, obj_name: str, others=()) -> list[tuple[int, int, str]]:
+    """(first, last, path) of every chunk file of the object in the output folder, sorted.
+    ``others``: the other objects' names, as for :func:`file_name`."""
     folder = os.path.join(output, CHUNKS)
-    prefix = clean_name(obj_name) + "."
+    prefix = file_name(obj_name, others) + "."
     found = []
     for name in os.listdir(folder) if os.path.isdir(folder) else []:
+        # digits only after the prefix: 'Bar.001.0001-0004.pc2' is not a chunk of 'Bar'
         m = re.fullmatch(r"(-?\d+)-(-?\d+)\.pc2", name[len(prefix) :])
         if name.startswith(prefix) and m:
             found.append((int(m[1]), int(m[2]), os.path.join(folder, name)))
@@ -101,11 +122,14 @@ def _ranges(frames) -> str:
     return ", ".join(f"{r[0]}" if len(r) == 1 else f"{r[0]}-{r[-1]}" for r in out)
 
 
-def plan_merge(output: str, obj_name: str, first: int, last: int, points: int) -> list[str]:
+def plan_merge(
+    output: str, obj_name: str, first: int, last: int, points: int, others=()
+) -> list[str]:
     """The chunk files that make the frames first..last, in order. FarmError (naming the files
     and frames) when a frame has no chunk, two chunks overlap, or a chunk's header does not
     match its name or the point count: the merge then writes nothing."""
-    chunks = [c for c in find_chunks(output, obj_name) if c[1] >= first and c[0] <= last]
+    found = find_chunks(output, obj_name, others)
+    chunks = [c for c in found if c[1] >= first and c[0] <= last]
     where = os.path.join(output, CHUNKS)
     covered = np.zeros(last - first + 1, np.int64)
     for a, b, _p in chunks:
@@ -146,11 +170,11 @@ def plan_merge(output: str, obj_name: str, first: int, last: int, points: int) -
     return [p for _a, _b, p in chunks]
 
 
-def merge(output: str, obj_name: str, first: int, last: int, points: int) -> str:
+def merge(output: str, obj_name: str, first: int, last: int, points: int, others=()) -> str:
     """Check the chunks (:func:`plan_merge`) and write them as one .pc2 (atomically: an existing
     merged cache stays as it was on any error). Returns its path."""
-    paths = plan_merge(output, obj_name, first, last, points)
-    out = merged_path(output, obj_name)
+    paths = plan_merge(output, obj_name, first, last, points, others)
+    out = merged_path(output, obj_name, others)
     with PC2Writer(out, points, last - first + 1, first) as w:
         for path in paths:
             for x in read_pc2(path)[2]:

@@ -70,10 +70,45 @@ def test_point_cache_path_relative_to_the_saved_blend(tmp_path):
     bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "scene.blend"))
     obj = bpy.data.objects["Bar"]
     assert op(frame_start=1, frame_end=5) == {"FINISHED"}
-    assert bridge.cache_modifier(obj).filepath == "//Bar.pc2"
-    assert os.path.exists(tmp_path / "Bar.pc2")
+    assert bridge.cache_modifier(obj).filepath == "//scene_Bar.pc2"
+    assert os.path.exists(tmp_path / "scene_Bar.pc2")
     bpy.context.scene.frame_set(3)
     np.testing.assert_allclose(evaluated(obj), live[3], atol=1e-6)
+
+
+def test_shots_in_one_folder_and_objects_named_alike_keep_their_own_caches(tmp_path):
+    """Two shots of the same character in one folder, and objects whose names clean to one file
+    name ('Arm.L' / 'Arm L' / 'Arm_L'): each default bake writes its own file, and the first
+    still plays its own motion after the others baked."""
+    obj, live = animated_bar()
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "shot_010.blend"))
+    op = bpy.ops.object.material_deform_bake_point_cache
+    assert op(frame_start=1, frame_end=5) == {"FINISHED"}
+    first = read_pc2(str(tmp_path / "shot_010_Bar.pc2"))[2]
+    np.testing.assert_array_equal(first[4], live[5])
+    # shot_020: the same file saved under another name, the Empty moved elsewhere, baked again
+    bpy.ops.object.material_deform_clear_bake()
+    scene = bpy.context.scene
+    scene.frame_set(5)
+    top = bpy.data.objects["Bar"].material_deform.anchors[0].empty
+    top.location.y -= 1.0
+    top.keyframe_insert("location", frame=5)
+    scene.frame_set(1)
+    bpy.ops.wm.save_as_mainfile(filepath=str(tmp_path / "shot_020.blend"))
+    assert op(frame_start=1, frame_end=5) == {"FINISHED"}
+    second = read_pc2(str(tmp_path / "shot_020_Bar.pc2"))[2]
+    assert np.abs(second[4] - first[4]).max() > 0.5  # another motion, in another file
+    np.testing.assert_array_equal(read_pc2(str(tmp_path / "shot_010_Bar.pc2"))[2], first)
+    # objects named alike, in one file: three bakes, three files
+    files = set()
+    obj = bpy.data.objects["Bar"]
+    for name in ("Arm.L", "Arm L", "Arm_L"):
+        obj.name = name
+        bpy.ops.object.material_deform_clear_bake()
+        assert op(frame_start=1, frame_end=2) == {"FINISHED"}
+        files.add(os.path.basename(bpy.path.abspath(bridge.cache_modifier(obj).filepath)))
+    assert len({f.casefold() for f in files}) == 3, files
+    assert all(os.path.exists(tmp_path / f) for f in files), files
 
 
 def test_a_failed_bake_leaves_the_old_cache_and_the_object_as_they_were(tmp_path):

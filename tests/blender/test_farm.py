@@ -360,10 +360,10 @@ def test_write_farm_bake_job_writes_the_bundle_and_says_how_to_run_it(tmp_path):
     s.bake_start, s.bake_end = 3, 40
     bpy.ops.wm.save_mainfile()
     assert bpy.ops.object.material_deform_farm_job(chunk_size=7) == {"FINISHED"}
-    folder = tmp_path / "farm_Material" / "job"  # next to the .blend by default
+    folder = tmp_path / "farm_scene_Material" / "job"  # next to the .blend by default
     params = json.loads((folder / "openjd_params.json").read_text())
     assert params == farm_job.job_parameters(
-        str(tmp_path / "scene.blend"), "Material", 3, 40, 7, str(tmp_path / "farm_Material")
+        str(tmp_path / "scene.blend"), "Material", 3, 40, 7, str(tmp_path / "farm_scene_Material")
     )
     assert (folder / "template.yaml").read_bytes() == Path(farm_job.template_path()).read_bytes()
     # in the Object > Material Deform menu (F3 finds it), next to the other bakes

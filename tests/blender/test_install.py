@@ -186,9 +186,9 @@ def test_background_bake_recipe_on_a_saved_scene(tmp_path, kind):
         ]
     out = subprocess.run(cmd, env=_env(tmp_path), capture_output=True, text=True, timeout=600)
     assert out.returncode == 0, out.stdout + out.stderr
-    start, _rate, frames = read_pc2(str(tmp_path / "Bar.pc2"))
+    start, _rate, frames = read_pc2(str(tmp_path / "scene_Bar.pc2"))
     assert start == 1.0
     np.testing.assert_allclose(frames, live, atol=1e-5)
     bpy.ops.wm.open_mainfile(filepath=str(blend))  # saved with the modifier that reads it
     mod = bpy.data.objects["Bar"].modifiers[0]
-    assert mod.type == "MESH_CACHE" and mod.filepath == "//Bar.pc2"
+    assert mod.type == "MESH_CACHE" and mod.filepath == "//scene_Bar.pc2"

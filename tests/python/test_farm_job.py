@@ -5,9 +5,11 @@ the chunks in order, and the submit helper's bundle is what openjd and Deadline 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import pathlib
+import re
 import subprocess
 import sys
 
@@ -235,12 +237,37 @@ def test_running_a_chunk_again_replaces_it(tmp_path):
     assert os.listdir(os.path.dirname(path)) == [os.path.basename(path)]
 
 
-def test_chunk_names_follow_blenders_clean_name_and_keep_objects_apart(tmp_path):
+def test_chunk_names_keep_objects_apart(tmp_path):
     write_chunk(tmp_path, 1, 2, name="Bar.001")
     write_chunk(tmp_path, 1, 2, name="Bar")
-    assert os.path.basename(farm_job.chunk_path("o", "Bar.001", 1, 2)) == "Bar_001.0001-0002.pc2"
+    assert os.path.basename(farm_job.chunk_path("o", "Bar.001", 1, 2)) == "Bar.001.0001-0002.pc2"
     assert [c[:2] for c in farm_job.find_chunks(str(tmp_path), "Bar")] == [(1, 2)]
-    assert farm_job.clean_name("Tä-n.t é/x_1") == "T_-n_t___x_1"  # as bpy.path.clean_name
+    assert [c[:2] for c in farm_job.find_chunks(str(tmp_path), "Bar.001")] == [(1, 2)]
+
+
+def test_file_names_differ_for_different_objects():
+    """Names that one character map would merge ('Arm.L' / 'Arm L' / 'Arm_L'), names in other
+    scripts, and names equal but for case (one file on Windows and macOS) get distinct files."""
+    names = [
+        "Arm.L",
+        "Arm L",
+        "Arm_L",
+        "Arm:L",
+        "arm_l",
+        "触手",
+        "尻尾",
+        "Tä-n.t é/x",
+        "CON",
+        "Bar.",
+    ]
+    files = [farm_job.file_name(n, names) for n in names]
+    assert len({f.casefold() for f in files}) == len(names), files
+    assert files[0] == "Arm.L" and files[5:7] == ["触手", "尻尾"]  # kept as they are
+    assert files[2] == "Arm_L-" + hashlib.sha1(b"Arm_L").hexdigest()[:8]  # 'arm_l' is there too
+    assert farm_job.file_name("Arm_L") == "Arm_L"  # alone, it keeps its name
+    for f in files[1], files[3], files[7], files[8], files[9]:  # changed, reserved, trailing '.'
+        assert re.fullmatch(r"[\w.-]+-[0-9a-f]{8}", f) and not f.startswith("CON."), f
+    assert all(set(f) <= set("-_.") | {c for c in f if c.isalnum()} for f in files)
 
 
 # --- the job bundle the submit helpers write ------------------------------------------------------

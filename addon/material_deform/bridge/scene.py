@@ -4,8 +4,11 @@ depsgraph, file paths, and the Mesh Cache modifier that plays a point-cache bake
 from __future__ import annotations
 
 import contextlib
+import os
 
 import bpy
+
+from ..farm_job import file_name
 
 
 def _view3d_spaces(context):
@@ -72,8 +75,16 @@ def abspath(path: str) -> str:
     return bpy.path.abspath(path)
 
 
-def clean_name(name: str) -> str:
-    return bpy.path.clean_name(name)
+def object_names() -> list[str]:
+    """Every object's name in the file (what an object's file name must differ from)."""
+    return [o.name for o in bpy.data.objects]
+
+
+def object_file_name(obj) -> str:
+    """``<blend name>_<object>``: a file-name stem that no other object, and no other .blend in
+    the same folder, gives (farm_job.file_name); 'untitled' before the first save."""
+    blend = os.path.splitext(os.path.basename(bpy.data.filepath))[0] or "untitled"
+    return f"{blend}_{file_name(obj.name, object_names())}"
 
 
 def blend_saved() -> bool:
