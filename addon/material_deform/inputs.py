@@ -85,6 +85,11 @@ def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
     mesh = obj.data
     if len(mesh.polygons) == 0:
         raise BindError("Mesh has no faces")
+    if bridge.absolute_shape_keys(obj):
+        raise BindError(
+            f"'{obj.name}' has absolute shape keys, which never show the result (a key relative "
+            "to the Basis): check Relative in its Shape Keys panel, then Bind"
+        )
     if len(s.anchors) == 0:
         raise BindError("No anchors: select faces in Edit Mode and click 'Add Anchor'")
     for anc in s.anchors:

@@ -249,3 +249,20 @@ def test_changing_anchor_mode_or_empty_after_bind_needs_rebind():
     bpy.context.scene.collection.objects.link(other)
     top.empty = other
     expect_error(bpy.ops.object.material_deform_update, "uses another Empty")
+
+
+def test_absolute_shape_keys_are_refused_and_nothing_changes():
+    """With Relative unchecked Blender shows one key by Evaluation Time, never the output key
+    over the Basis: Bind would succeed and the mesh never move. It says so instead, and binds
+    once Relative is checked again."""
+    obj = tube()
+    two_end_anchors(obj)
+    obj.shape_key_add(name="Basis", from_mix=False)
+    obj.shape_key_add(name="Pose", from_mix=False)
+    obj.data.shape_keys.use_relative = False
+    before = snapshot(obj)
+    expect_error(bpy.ops.object.material_deform_bind, "absolute shape keys.*check Relative")
+    assert snapshot(obj) == before and not obj.material_deform.bound
+    assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "Pose"]
+    obj.data.shape_keys.use_relative = True
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}

@@ -18,6 +18,13 @@ BAKE_PREFIX = "MD Bake "
 POSE_RECORD = "material_deform_pose"  # custom property of the Key: what the output key holds
 
 
+def absolute_shape_keys(obj) -> bool:
+    """True if the mesh's shape keys are absolute (Relative unchecked): Blender then shows one
+    key by the Evaluation Time, never a relative key over the Basis such as the output."""
+    keys = obj.data.shape_keys
+    return keys is not None and not keys.use_relative
+
+
 def shape_key_info(obj) -> list[tuple[str, bool, bool]]:
     """(name, muted, is the reference key) of every shape key, in list order."""
     keys = obj.data.shape_keys
