@@ -7,7 +7,9 @@ then ``samples * points * 3`` float32 coordinates, sample after sample.
 
 from __future__ import annotations
 
+import contextlib
 import os
+import socket
 import struct
 
 import numpy as np
@@ -16,19 +18,60 @@ MAGIC = b"POINTCACHE2\0"
 _HEAD = struct.Struct("<12siiffi")
 
 
+def _temp_prefix(path: str) -> str:
+    # host and process in the name: writers on several farm nodes never share a temp file, and
+    # one left by a killed process of this host can be told apart from a running writer's
+    return f"{path}.tmp-{socket.gethostname()}-"
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)  # POSIX only: signal 0 checks, on Windows os.kill would terminate
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True  # someone else's process: alive
+    return True
+
+
+def remove_stale_temps(path: str) -> list[str]:
+    """Remove the temporary files of ``path`` left by writers of this host that no longer run
+    (a bake or farm task killed mid-write), which would keep a full disk full. Returns them.
+    Temp files of other hosts and of running processes stay; on Windows nothing is removed."""
+    if os.name != "posix":
+        return []
+    folder, prefix = os.path.split(_temp_prefix(path))
+    removed = []
+    for name in os.listdir(folder or "."):
+        pid = name[len(prefix) :]
+        if name.startswith(prefix) and pid.isdigit() and not _running(int(pid)):
+            with contextlib.suppress(OSError):
+                os.unlink(os.path.join(folder, name))
+                removed.append(name)
+    return removed
+
+
 class PC2Writer:
     """Write ``samples`` frames of ``points`` positions to ``path`` atomically: the frames go
     to a temporary file next to it, renamed over ``path`` only when every frame was written
-    (an error or an interrupted bake leaves an existing cache as it was)."""
+    (an error or an interrupted bake leaves an existing cache as it was, and no temporary
+    file; those of killed writers go when the next writer of ``path`` starts)."""
 
     def __init__(self, path: str, points: int, samples: int, start: float, rate: float = 1.0):
         if points <= 0 or samples <= 0:
             raise ValueError("points and samples: must be > 0")
         self.path, self.points, self.samples = path, int(points), int(samples)
-        self.tmp = f"{path}.tmp{os.getpid()}"
+        remove_stale_temps(path)
+        self.tmp = f"{_temp_prefix(path)}{os.getpid()}"
         self.written = 0
         self._f = open(self.tmp, "wb")  # noqa: SIM115 (closed in close / __exit__)
-        self._f.write(_HEAD.pack(MAGIC, 1, self.points, float(start), float(rate), self.samples))
+        try:
+            self._f.write(
+                _HEAD.pack(MAGIC, 1, self.points, float(start), float(rate), self.samples)
+            )
+        except BaseException:
+            self.abort()
+            raise
 
     def add(self, positions) -> None:
         """positions: (points,3) for the next frame."""
@@ -41,15 +84,22 @@ class PC2Writer:
         self.written += 1
 
     def close(self) -> None:
-        self._f.close()
         if self.written != self.samples:
-            os.unlink(self.tmp)
+            self.abort()
             raise ValueError(f"only {self.written} of {self.samples} samples were written")
-        os.replace(self.tmp, self.path)
+        try:
+            self._f.close()  # flushes: a full disk fails here too
+            os.replace(self.tmp, self.path)
+        except BaseException:
+            self.abort()
+            raise
 
     def abort(self) -> None:
-        self._f.close()
-        if os.path.exists(self.tmp):
+        """Drop the temporary file (the cache at ``path`` stays as it was), even when closing it
+        fails as a full disk makes it fail."""
+        with contextlib.suppress(OSError):
+            self._f.close()
+        with contextlib.suppress(FileNotFoundError):
             os.unlink(self.tmp)
 
     def __enter__(self):

@@ -5,11 +5,13 @@ the chunks in order, and the submit helper's bundle is what openjd and Deadline 
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import json
 import os
 import pathlib
 import re
+import signal
 import subprocess
 import sys
 
@@ -26,7 +28,7 @@ from openjd.model import (
 ROOT = pathlib.Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "addon"))
 
-from material_deform import farm_job  # noqa: E402
+from material_deform import farm_job, pointcache  # noqa: E402
 from material_deform.farm_job import FarmError  # noqa: E402
 from material_deform.pointcache import PC2Writer, read_pc2  # noqa: E402
 
@@ -237,6 +239,54 @@ def test_running_a_chunk_again_replaces_it(tmp_path):
     assert os.listdir(os.path.dirname(path)) == [os.path.basename(path)]
 
 
+class _FullDisk:
+    """A file with room for ``room`` writes, whose final flush fails, as on a full disk."""
+
+    def __init__(self, f, room):
+        self.f, self.room = f, room
+
+    def write(self, data):
+        if self.room == 0:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        self.room -= 1
+        self.f.write(data)
+
+    def close(self):
+        self.f.close()
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+
+def test_a_full_disk_or_a_killed_writer_leaves_no_temporary_file(tmp_path, monkeypatch):
+    path = str(tmp_path / "Bar.pc2")
+    with PC2Writer(path, POINTS, 1, 1) as w:
+        w.add(frame_positions(1))
+    old = open(path, "rb").read()
+    real_open = open
+    for room in (0, 1, 2):  # the header, the frame, or the closing flush fails
+        disk = lambda *a, room=room: _FullDisk(real_open(*a), room)  # noqa: E731
+        monkeypatch.setattr(pointcache, "open", disk, raising=False)
+        with pytest.raises(OSError, match="No space"), PC2Writer(path, POINTS, 1, 1) as w:
+            w.add(frame_positions(2))
+        assert os.listdir(tmp_path) == ["Bar.pc2"] and open(path, "rb").read() == old, room
+    monkeypatch.undo()
+    # a writer killed half way leaves its temporary file; the next writer removes it, not
+    # the temporary file another farm node is writing
+    kill = (
+        f"import os, signal, sys; sys.path.insert(0, {str(ROOT / 'addon')!r}); "
+        "from material_deform.pointcache import PC2Writer; "
+        f"w = PC2Writer({path!r}, 3, 2, 1); w.add([[0.0] * 3] * 3); w._f.flush(); "
+        "os.kill(os.getpid(), signal.SIGKILL)"
+    )
+    assert subprocess.run([sys.executable, "-c", kill]).returncode == -signal.SIGKILL
+    other = tmp_path / "Bar.pc2.tmp-another-node-1"
+    other.write_bytes(b"")
+    assert len(os.listdir(tmp_path)) == 3
+    with PC2Writer(path, POINTS, 1, 1) as w:
+        w.add(frame_positions(2))
+    assert sorted(os.listdir(tmp_path)) == ["Bar.pc2", other.name]
+    assert read_pc2(path)[2].shape == (1, POINTS, 3)
+
+
 def test_chunk_names_keep_objects_apart(tmp_path):
     write_chunk(tmp_path, 1, 2, name="Bar.001")
     write_chunk(tmp_path, 1, 2, name="Bar")
@@ -331,8 +381,9 @@ def test_farm_bake_script_writes_the_bundle(tmp_path):
 
 def test_docs_give_the_commands_the_bundle_writes():
     """docs/farm.md's example commands are what farm_job writes for its example."""
-    p = farm_job.job_parameters("/shots/shot.blend", "Tentacle", 1, 240, 10, "/shots/farm_Tentacle")
-    cmds = farm_job.commands("/shots/farm_Tentacle/job", p)
+    out = "/shots/farm_shot_Tentacle"  # the default output folder of shot.blend's Tentacle
+    p = farm_job.job_parameters("/shots/shot.blend", "Tentacle", 1, 240, 10, out)
+    cmds = farm_job.commands(f"{out}/job", p)
     text = (ROOT / "docs" / "farm.md").read_text()
     for key in ("local", "deadline", "chunk", "merge"):
         assert cmds[key] in text, key
