@@ -8,6 +8,7 @@ bake. The file logic without bpy (ranges, chunk files, merge, bundle) is in ``fa
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 import traceback
@@ -19,6 +20,7 @@ from . import bake, bridge, farm_job, session
 from .farm_job import PREFIX, FarmError
 from .model import BindError, settings
 from .operators import _BLEND_RELATIVE, _ObjectOperator
+from .pointcache import temp_name
 
 # --- the tasks ----------------------------------------------------------------------------------
 
@@ -87,9 +89,18 @@ def run_merge(blend: str, obj_name: str, frames_expr: str, output: str) -> tuple
     # Relative to the file as it is now; saving with relative_remap makes it '//<name>.pc2',
     # next to the copy, so the output folder can move (or come back from a farm) as a whole.
     bake.use_point_cache(obj, scene, bpy.path.relpath(merged), first)
-    tmp = copy + ".tmp.blend"  # renamed when complete: an earlier copy stays until then
-    bpy.ops.wm.save_as_mainfile(filepath=tmp, relative_remap=True)
-    os.replace(tmp, copy)
+    # renamed when complete, so an earlier copy stays until then; a name of this process's own,
+    # so that two merges at once (a re-run while the first still runs) do not meet
+    tmp = temp_name(copy, ".blend")
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=tmp, relative_remap=True)
+        os.replace(tmp, copy)
+    except (RuntimeError, OSError) as exc:
+        for leftover in (tmp, tmp + "1"):  # and the backup Blender makes of a file it replaces
+            with contextlib.suppress(OSError):
+                os.unlink(leftover)
+        reason = exc.strerror if isinstance(exc, OSError) else str(exc).strip()
+        raise FarmError(f"cannot save {copy}: {reason}") from None
     _say(f"saved {copy}: its Mesh Cache modifier reads {bridge.cache_modifier(obj).filepath}")
     return merged, copy
 
@@ -107,6 +118,10 @@ def main(argv) -> int:
             raise FarmError(f"unknown task '{command}' (chunk or merge)")
     except (FarmError, BindError, ValueError) as exc:
         _say(f"ERROR: {exc}")
+        return 1
+    except OSError as exc:  # the output folder: missing, read-only, full, a file in the way
+        what = f"cannot write {exc.filename}" if exc.filename else "cannot write the output"
+        _say(f"ERROR: {what}: {exc.strerror or exc} (the output folder must be writable)")
         return 1
     except Exception as exc:  # a bug: the traceback for the report, then the one line
         traceback.print_exc()

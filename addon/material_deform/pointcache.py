@@ -18,6 +18,11 @@ MAGIC = b"POINTCACHE2\0"
 _HEAD = struct.Struct("<12siiffi")
 
 
+def temp_name(path: str, suffix: str = "") -> str:
+    """A temporary file next to ``path`` that no other writer (process or farm node) uses."""
+    return f"{_temp_prefix(path)}{os.getpid()}{suffix}"
+
+
 def _temp_prefix(path: str) -> str:
     # host and process in the name: writers on several farm nodes never share a temp file, and
     # one left by a killed process of this host can be told apart from a running writer's
@@ -62,9 +67,12 @@ class PC2Writer:
             raise ValueError("points and samples: must be > 0")
         self.path, self.points, self.samples = path, int(points), int(samples)
         remove_stale_temps(path)
-        self.tmp = f"{_temp_prefix(path)}{os.getpid()}"
+        self.tmp = temp_name(path)
         self.written = 0
-        self._f = open(self.tmp, "wb")  # noqa: SIM115 (closed in close / __exit__)
+        try:
+            self._f = open(self.tmp, "wb")  # noqa: SIM115 (closed in close / __exit__)
+        except OSError as exc:  # name the cache, not the temporary file next to it
+            raise OSError(exc.errno, exc.strerror, path) from None
         try:
             self._f.write(
                 _HEAD.pack(MAGIC, 1, self.points, float(start), float(rate), self.samples)
@@ -90,8 +98,10 @@ class PC2Writer:
         try:
             self._f.close()  # flushes: a full disk fails here too
             os.replace(self.tmp, self.path)
-        except BaseException:
+        except BaseException as exc:
             self.abort()
+            if isinstance(exc, OSError):  # name the cache, not the temporary file
+                raise OSError(exc.errno, exc.strerror, self.path) from None
             raise
 
     def abort(self) -> None:

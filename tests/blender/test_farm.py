@@ -9,6 +9,7 @@ import os
 import random
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -17,7 +18,7 @@ import bpy
 import numpy as np
 import pytest
 from helpers import RecordingLayout, evaluated, rest, tube, two_end_anchors
-from material_deform import bake, bridge, farm_job
+from material_deform import bake, bridge, farm, farm_job
 from material_deform.pointcache import read_pc2
 
 REPO = Path(__file__).resolve().parents[2]
@@ -397,3 +398,46 @@ def test_write_farm_bake_job_refuses_unsaved_changes_and_a_stale_bind(tmp_path, 
     with pytest.raises(RuntimeError, match="Anisotropic is on but there is no per-axis"):
         bpy.ops.object.material_deform_farm_job(directory=str(tmp_path / "o"))
     assert not (tmp_path / "o").exists()
+
+
+def test_two_merges_at_once_and_an_unwritable_output(tmp_path, capfd):
+    """A merge saves its copy of the .blend under a temporary name of its own, so a second
+    merge of the same job running at the same time (another node, a re-run) is not disturbed
+    and nothing is left behind. Where the output cannot be written, a task says so in one line
+    naming the file it wanted, with no traceback."""
+    blend = tmp_path / "scene.blend"
+    saved_scene(blend, ("MATERIAL",))
+    out = tmp_path / "out"
+    for frames in ("1-4", "5-12"):
+        assert farm.main(["chunk", str(blend), "Material", frames, str(out)]) == 0
+    copy = farm_job.baked_blend_path(str(out), str(blend), "Material")
+    # what another merge is writing right now: its temporary copy, and the one a fixed name
+    # would give
+    others = [Path(f"{copy}.tmp-another-node-1.blend"), Path(f"{copy}.tmp.blend")]
+    for other in others:
+        other.write_bytes(b"another merge's copy")
+    assert farm.main(["merge", str(blend), "Material", "1-12", str(out)]) == 0
+    assert all(o.read_bytes() == b"another merge's copy" for o in others)
+    names = sorted(p.name for p in out.iterdir())
+    assert names == sorted(["chunks", "Material.pc2", Path(copy).name] + [o.name for o in others])
+    capfd.readouterr()
+    # an output folder in which a file stands where the chunks go, and one where the merged
+    # cache goes
+    blocked = tmp_path / "blocked"
+    blocked.mkdir()
+    (blocked / "chunks").write_bytes(b"")
+    assert farm.main(["chunk", str(blend), "Material", "1-4", str(blocked)]) == 1
+    shutil.rmtree(blocked)
+    shutil.copytree(out / "chunks", blocked / "chunks")
+    (blocked / "Material.pc2").mkdir()
+    assert farm.main(["merge", str(blend), "Material", "1-12", str(blocked)]) == 1
+    said = capfd.readouterr()
+    errors = [x for x in said.out.splitlines() if "ERROR" in x]
+    assert errors == [
+        f"{farm_job.PREFIX} ERROR: cannot write {blocked / 'chunks'}: File exists (the output "
+        "folder must be writable)",
+        f"{farm_job.PREFIX} ERROR: cannot write {blocked / 'Material.pc2'}: Is a directory "
+        "(the output folder must be writable)",
+    ], said.out
+    assert "Traceback" not in said.out + said.err and ".tmp" not in said.out
+    assert sorted(p.name for p in blocked.iterdir()) == ["Material.pc2", "chunks"]
