@@ -72,6 +72,14 @@ def _anchor_faces(obj, a: bridge.MeshArrays, method) -> tuple[list, list, list]:
     return faces_out, modes, names
 
 
+def shared_mesh_message(obj, shared: list[str], then: str = "Bind") -> str:
+    return (
+        f"'{obj.name}' shares its mesh with '{shared[0]}' (a linked duplicate): the shape keys, "
+        "and so the result, belong to the mesh and would show on both. Make it single-user "
+        f"(Object > Relations > Make Single User > Object & Data), then {then}"
+    )
+
+
 def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
     """Read everything the solver needs and validate it; raises BindError with a clear
     message and touches nothing. ``binding``: called by Bind (the method may read the state
@@ -85,6 +93,9 @@ def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
     mesh = obj.data
     if len(mesh.polygons) == 0:
         raise BindError("Mesh has no faces")
+    shared = bridge.mesh_sharers(obj)
+    if shared:
+        raise BindError(shared_mesh_message(obj, shared))
     if bridge.absolute_shape_keys(obj):
         raise BindError(
             f"'{obj.name}' has absolute shape keys, which never show the result (a key relative "

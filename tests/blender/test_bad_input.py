@@ -266,3 +266,31 @@ def test_absolute_shape_keys_are_refused_and_nothing_changes():
     assert [kb.name for kb in obj.data.shape_keys.key_blocks] == ["Basis", "Pose"]
     obj.data.shape_keys.use_relative = True
     assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+
+
+def test_a_linked_duplicate_is_refused_and_the_original_keeps_its_result():
+    """Alt+D makes an object that shares the mesh, and so its shape keys, with the original:
+    Bind and Reset on it would drive or delete the original's result. Both say so; once the copy
+    is made single-user it binds on its own and the original's result stays as it was."""
+    obj = tube()
+    top, _ = two_end_anchors(obj)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    top.empty.location.x += 1.0
+    update()
+    posed = output(obj).copy()
+    assert np.abs(posed - rest(obj)).max() > 0.5
+    bpy.ops.object.select_all(action="DESELECT")
+    obj.select_set(True)
+    bpy.ops.object.duplicate(linked=True)
+    copy = bpy.context.view_layer.objects.active
+    assert copy != obj and copy.data == obj.data
+    before = snapshot(obj)
+    expect_error(bpy.ops.object.material_deform_bind, "shares its mesh with 'Bar'.*then Bind")
+    expect_error(bpy.ops.object.material_deform_reset, "shares its mesh with 'Bar'.*then Reset")
+    assert snapshot(obj) == before
+    np.testing.assert_array_equal(output(obj), posed)
+    copy.data = copy.data.copy()  # Make Single User > Object & Data
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    assert bpy.ops.object.material_deform_reset() == {"FINISHED"}
+    assert copy.data.shape_keys is None or "Material Deform" not in copy.data.shape_keys.key_blocks
+    np.testing.assert_array_equal(output(obj), posed)

@@ -80,6 +80,14 @@ def object_names() -> list[str]:
     return [o.name for o in bpy.data.objects]
 
 
+def mesh_sharers(obj) -> list[str]:
+    """Names of the other objects that use this object's mesh (linked duplicates, Alt+D)."""
+    mesh = obj.data
+    if mesh.users - int(mesh.use_fake_user) <= 1:
+        return []
+    return [o.name for o in bpy.data.objects if o.data == mesh and o != obj]
+
+
 def object_file_name(obj) -> str:
     """``<blend name>_<object>``: a file-name stem that no other object, and no other .blend in
     the same folder, gives (farm_job.file_name); 'untitled' before the first save."""

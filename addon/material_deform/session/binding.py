@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import anchor_math as am
 from .. import bridge
-from ..inputs import gather, method_of
+from ..inputs import gather, method_of, shared_mesh_message
 from ..model import BindError, Entry, Inputs, settings
 from . import twist
 from .output import _record
@@ -147,7 +147,11 @@ def bind(
 
 
 def unbind(obj) -> None:
-    """Remove the output and forget the bind: the mesh is back to its rest shape bit for bit."""
+    """Remove the output and forget the bind: the mesh is back to its rest shape bit for bit.
+    Refused when another object uses the mesh: its keys would go with this object's."""
+    shared = bridge.mesh_sharers(obj)
+    if shared:
+        raise BindError(shared_mesh_message(obj, shared, then="Reset"))
     s = settings(obj)
     key = obj.as_pointer()
     entry = _cache.get(key)
