@@ -13,6 +13,7 @@ from . import anchor_math as am
 from . import bridge, methods, stiffness
 from . import stiffness_map as sm
 from .model import BindError, Inputs, load_core, settings
+from .triangulation import flat_area
 
 
 def method_of(obj) -> methods.Method:
@@ -32,9 +33,7 @@ def _check_mesh(a: bridge.MeshArrays) -> None:
             f"Mesh is non-manifold: {int((edge_use > 2).sum())} edge(s) shared by more than two "
             "faces (Select > All by Trait > Non Manifold)"
         )
-    areas = am.triangle_areas(a.rest, a.tris)
-    diag = float(np.linalg.norm(a.rest.max(axis=0) - a.rest.min(axis=0)))
-    degenerate = areas <= 1e-12 * max(diag, 1e-30) ** 2
+    degenerate = am.triangle_areas(a.rest, a.tris) <= flat_area(a.rest)
     if degenerate.any():
         polys = np.unique(a.tri_poly[degenerate])
         raise BindError(

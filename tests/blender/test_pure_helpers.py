@@ -163,3 +163,41 @@ def test_platform_check_here_passes_for_the_built_zips():
     if not tags:
         pytest.skip(f"{legacy} not built (run scripts/build_addon.sh)")
     assert pc.problem(tags, here) is None, pc.problem(tags, here)
+
+
+def _area(p, t):
+    return 0.5 * np.linalg.norm(np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]), axis=1)
+
+
+def test_polygons_with_collinear_corners_get_triangles_without_flat_ones():
+    """A cap n-gon with corners in the middle of its edges, tilted in space: k-2 triangles in
+    the polygon's winding, none flat, covering exactly its area."""
+    from material_deform import triangulation as tr
+
+    angle = np.linspace(0, 2 * np.pi, 12, endpoint=False)
+    ring = np.stack([np.cos(angle), np.sin(angle), np.zeros(12)], axis=1)
+    mids = (ring + np.roll(ring, -1, axis=0)) / 2
+    cap = np.insert(ring, [1, 5, 6], mids[[0, 4, 5]], axis=0)  # 3 corners on straight edges
+    turn = np.linalg.qr(np.arange(9.0).reshape(3, 3) + np.eye(3) * 5)[0]
+    p = cap @ turn.T + [3.0, -1.0, 2.0]
+    t = tr.polygon_triangles(p, 1e-12)
+    assert t.shape == (len(p) - 2, 3) and sorted(set(t.ravel())) == list(range(len(p)))
+    assert _area(p, t).min() > 1e-3
+    np.testing.assert_allclose(_area(p, t).sum(), 6 * np.sin(2 * np.pi / 12), rtol=1e-12)
+    normal = turn @ [0.0, 0.0, 1.0]
+    assert (np.cross(p[t[:, 1]] - p[t[:, 0]], p[t[:, 2]] - p[t[:, 0]]) @ normal > 0).all()
+    # a square with a corner in the middle of one side; a polygon with no area at all
+    sq = np.array([[0, 0, 0], [1, 0, 0], [1, 0.5, 0], [1, 1, 0], [0, 1, 0]], float)
+    areas = _area(sq, tr.polygon_triangles(sq, 1e-12))
+    assert len(areas) == 3 and areas.min() > 0.2 and abs(areas.sum() - 1.0) < 1e-12
+    assert tr.polygon_triangles(np.array([[0, 0, 0], [1, 0, 0], [2, 0, 0.0]]), 1e-12) is None
+    # in a mesh: only the polygon holding a flat triangle is triangulated again
+    rest = np.vstack([sq, [[2, 0, 0], [2, 1, 0]]])
+    tris = np.array([[1, 2, 3], [0, 1, 3], [0, 3, 4], [1, 5, 6], [1, 6, 3]])
+    tri_poly = np.array([0, 0, 0, 1, 1])
+    loops = np.array([0, 1, 2, 3, 4, 1, 5, 6, 3])
+    out = tr.without_flat_triangles(
+        rest, tris, tri_poly, np.array([0, 5]), np.array([5, 4]), loops, 1e-12
+    )
+    np.testing.assert_array_equal(out[3:], tris[3:])
+    assert _area(rest, out[:3]).min() > 0.1 and set(out[:3].ravel()) == {0, 1, 2, 3, 4}

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BindError
+from ..triangulation import flat_area, without_flat_triangles
 from .arrays import _get, _raw_copy_from_key
 
 
@@ -87,11 +88,14 @@ def rest_positions(mesh) -> np.ndarray:
 
 
 def mesh_arrays(mesh) -> MeshArrays:
+    """The mesh as arrays. Its triangles are Blender's tessellation, except in polygons where
+    that holds a flat triangle (a collinear corner, on some Blender versions): those are
+    triangulated without one (triangulation.without_flat_triangles)."""
     mesh.calc_loop_triangles()
     m = len(mesh.loop_triangles)
     n_loops = len(mesh.loops)
     p = len(mesh.polygons)
-    return MeshArrays(
+    a = MeshArrays(
         rest=rest_positions(mesh),
         tris=_get(mesh.loop_triangles, "vertices", m, np.int32, 3).astype(np.int64),
         tri_poly=_get(mesh.loop_triangles, "polygon_index", m, np.int32).astype(np.int64),
@@ -101,6 +105,10 @@ def mesh_arrays(mesh) -> MeshArrays:
         loop_edge=_get(mesh.loops, "edge_index", n_loops, np.int32).astype(np.int64),
         edge_verts=_get(mesh.edges, "vertices", len(mesh.edges), np.int32, 2).astype(np.int64),
     )
+    a.tris = without_flat_triangles(
+        a.rest, a.tris, a.tri_poly, a.loop_start, a.loop_total, a.loop_vert, flat_area(a.rest)
+    )
+    return a
 
 
 def counts(mesh) -> tuple[int, int, int, int]:
