@@ -3,6 +3,7 @@ modifier), clearing a bake, and rebuilding the solvers of a loaded scene."""
 
 from __future__ import annotations
 
+import hashlib
 import os
 
 from . import bridge, session
@@ -84,6 +85,20 @@ def bake(obj, scene, frames, progress=None, unsettled=None) -> list[str]:
     names = [bridge.bake_key(obj, f, x) for f, x in solved]
     _hand_over(obj)
     return names
+
+
+def baked_from(obj) -> str:
+    """A digest of what a bake of ``obj`` is made of: the bind (mesh, anchors, stiffness,
+    method), the method's settings, and everything that moves the anchors. Two processes that
+    open the same saved file get the same digest; any change that can change a baked frame
+    gives another."""
+    s = settings(obj)
+    parts = (
+        (s.fp_topology, s.fp_anchors, s.fp_stiffness, s.fp_method),
+        session.settings_signature(obj),
+        bridge.motion_record(obj, [a.empty for a in s.anchors]),
+    )
+    return hashlib.blake2b(repr(parts).encode(), digest_size=16).hexdigest()
 
 
 def cache_path(obj, path: str) -> tuple[str, str]:

@@ -59,6 +59,7 @@ def run_chunk(blend: str, obj_name: str, frames_expr: str, output: str) -> str:
     (replacing that chunk if it exists; atomically). Returns its path."""
     frames, first, last = _frames(frames_expr)
     obj, scene = _open(blend, obj_name)
+    baked_from = bake.baked_from(obj)
     path = farm_job.chunk_path(output, obj.name, first, last, bridge.object_names())
     os.makedirs(os.path.dirname(path), exist_ok=True)
     _say(f"baking '{obj.name}' ({settings(obj).method}) frames {first}-{last} into {path}")
@@ -69,6 +70,7 @@ def run_chunk(blend: str, obj_name: str, frames_expr: str, output: str) -> str:
         _say(text.removeprefix("Material Deform: "))
 
     bake.write_point_cache(obj, scene, frames, path, progress, unsettled)
+    farm_job.write_record(path, baked_from)  # what the merge checks the chunk against
     _say(f"chunk {first}-{last} done in {time.perf_counter() - t0:.2f} s")
     if unsettled:
         _say("WARNING: " + bake.unsettled_warning(unsettled, len(frames)))
@@ -83,7 +85,8 @@ def run_merge(blend: str, obj_name: str, frames_expr: str, output: str) -> tuple
     _frames_list, first, last = _frames(frames_expr)
     obj, scene = _open(blend, obj_name)
     others = bridge.object_names()
-    merged = farm_job.merge(output, obj.name, first, last, len(obj.data.vertices), others)
+    points = len(obj.data.vertices)
+    merged = farm_job.merge(output, obj.name, first, last, points, others, bake.baked_from(obj))
     _say(f"merged frames {first}-{last} of '{obj.name}' into {merged}")
     copy = farm_job.baked_blend_path(output, blend, obj.name, others)
     # Relative to the file as it is now; saving with relative_remap makes it '//<name>.pc2',

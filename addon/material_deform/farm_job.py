@@ -19,7 +19,7 @@ import shutil
 
 import numpy as np
 
-from .pointcache import PC2Writer, read_pc2
+from .pointcache import PC2Writer, read_pc2, temp_name
 
 TEMPLATE = "material_deform_bake.yaml"  # the OpenJD job template, in farm/ of the repository
 TASK = "material_deform_farm_task.py"  # its tasks' script (embedded in it), for other farms
@@ -95,6 +95,29 @@ def baked_blend_path(output: str, blend: str, obj_name: str, others=()) -> str:
     return os.path.join(output, f"{stem}_{file_name(obj_name, others)}_baked.blend")
 
 
+def record_path(chunk: str) -> str:
+    """Where a chunk's record of what it was baked from is kept (next to it)."""
+    return chunk + ".json"
+
+
+def write_record(chunk: str, baked_from: str) -> None:
+    """Keep ``baked_from`` (bake.baked_from of the object when the chunk was baked) next to the
+    chunk, atomically."""
+    path = record_path(chunk)
+    tmp = temp_name(path)
+    with open(tmp, "w", encoding="utf-8") as f:
+        json.dump({"baked_from": baked_from}, f)
+    os.replace(tmp, path)
+
+
+def read_record(chunk: str) -> str | None:
+    try:
+        with open(record_path(chunk), encoding="utf-8") as f:
+            return str(json.load(f)["baked_from"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def find_chunks(output: str, obj_name: str, others=()) -> list[tuple[int, int, str]]:
     """(first, last, path) of every chunk file of the object in the output folder, sorted.
     ``others``: the other objects' names, as for :func:`file_name`."""
@@ -123,11 +146,18 @@ def _ranges(frames) -> str:
 
 
 def plan_merge(
-    output: str, obj_name: str, first: int, last: int, points: int, others=()
+    output: str,
+    obj_name: str,
+    first: int,
+    last: int,
+    points: int,
+    others=(),
+    baked_from: str | None = None,
 ) -> list[str]:
     """The chunk files that make the frames first..last, in order. FarmError (naming the files
-    and frames) when a frame has no chunk, two chunks overlap, or a chunk's header does not
-    match its name or the point count: the merge then writes nothing."""
+    and frames) when a frame has no chunk, two chunks overlap, a chunk's header does not match
+    its name or the point count, or (given ``baked_from``, what the file holds now) a chunk was
+    baked from something else: the merge then writes nothing."""
     found = find_chunks(output, obj_name, others)
     chunks = [c for c in found if c[1] >= first and c[0] <= last]
     where = os.path.join(output, CHUNKS)
@@ -167,13 +197,29 @@ def plan_merge(
                 f"chunk {os.path.basename(path)} has {data.shape[1]} points, '{obj_name}' has "
                 f"{points} vertices (the mesh changed since the chunk was baked?); nothing merged"
             )
+    if baked_from is not None:
+        other = [os.path.basename(p) for _a, _b, p in chunks if read_record(p) != baked_from]
+        if other:
+            raise FarmError(
+                f"chunk(s) {', '.join(other)} were baked from another version of '{obj_name}' "
+                "(its bind, method settings or the anchors' animation changed in the saved "
+                "file since, or they have no record of it): bake them again; nothing merged"
+            )
     return [p for _a, _b, p in chunks]
 
 
-def merge(output: str, obj_name: str, first: int, last: int, points: int, others=()) -> str:
+def merge(
+    output: str,
+    obj_name: str,
+    first: int,
+    last: int,
+    points: int,
+    others=(),
+    baked_from: str | None = None,
+) -> str:
     """Check the chunks (:func:`plan_merge`) and write them as one .pc2 (atomically: an existing
     merged cache stays as it was on any error). Returns its path."""
-    paths = plan_merge(output, obj_name, first, last, points, others)
+    paths = plan_merge(output, obj_name, first, last, points, others, baked_from)
     out = merged_path(output, obj_name, others)
     with PC2Writer(out, points, last - first + 1, first) as w:
         for path in paths:

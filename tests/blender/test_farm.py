@@ -441,3 +441,52 @@ def test_two_merges_at_once_and_an_unwritable_output(tmp_path, capfd):
     ], said.out
     assert "Traceback" not in said.out + said.err and ".tmp" not in said.out
     assert sorted(p.name for p in blocked.iterdir()) == ["Material.pc2", "chunks"]
+
+
+def test_a_chunk_baked_again_after_the_file_changed_is_not_merged_with_the_old_ones(
+    tmp_path, capfd
+):
+    """Each chunk keeps what it was baked from (bind, method settings, the anchors' animation).
+    After the saved file changes in a way the bind does not see (Edge gravity) or in the
+    animation (a moved key), one chunk baked again does not merge with the old ones: the merge
+    names them, writes nothing, and merges once they are baked again too."""
+    blend = tmp_path / "scene.blend"
+    saved_scene(blend, ("EDGE",))
+    out = str(tmp_path / "out")
+
+    def chunks(*ranges):
+        for frames in ranges:
+            assert farm.main(["chunk", str(blend), "Edge", frames, out]) == 0
+
+    def merge():
+        return farm.main(["merge", str(blend), "Edge", "1-12", out])
+
+    chunks("1-4", "5-8", "9-12")
+    bpy.ops.wm.save_mainfile()  # saved again, unchanged: still one version
+    assert merge() == 0
+    first = read_pc2(os.path.join(out, "Edge.pc2"))[2]
+    capfd.readouterr()
+    for change in ("gravity", "key"):
+        bpy.ops.wm.open_mainfile(filepath=str(blend))  # the merge left its baked copy open
+        obj = bpy.data.objects["Edge"]
+        if change == "gravity":
+            obj.material_deform.edge.gravity_strength = 5.0
+        else:
+            empty = obj.material_deform.anchors[0].empty
+            fc = next(
+                c for c in bridge.action_fcurves(empty.animation_data) if c.data_path == "location"
+            )
+            fc.keyframe_points[-1].co.y += 0.5
+        bpy.ops.wm.save_mainfile()
+        assert not bpy.data.objects["Edge"].material_deform.rebind_reason  # the bind holds
+        chunks("5-8")
+        assert merge() == 1
+        said = capfd.readouterr().out
+        assert (
+            "ERROR: chunk(s) Edge.0001-0004.pc2, Edge.0009-0012.pc2 were baked from another" in said
+        )
+        chunks("1-4", "9-12")
+        assert merge() == 0
+        now = read_pc2(os.path.join(out, "Edge.pc2"))[2]
+        assert np.abs(now - first).max() > 1e-3  # the change does change the cache
+        first = now

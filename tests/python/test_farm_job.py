@@ -178,6 +178,29 @@ def test_merge_writes_the_chunks_in_frame_order(tmp_path):
     np.testing.assert_array_equal(data, np.stack([frame_positions(f) for f in range(1, 13)]))
 
 
+def test_merge_refuses_chunks_baked_from_another_version_of_the_file(tmp_path):
+    """Each chunk keeps what it was baked from; the merge compares it with the file as it is
+    now and names every chunk that differs or keeps no record."""
+    paths = [write_chunk(tmp_path, a, b) for a, b in ((1, 4), (5, 8), (9, 12))]
+    for p, made in zip(paths, ("v2", "v1", "v2"), strict=True):
+        farm_job.write_record(p, made)
+    assert farm_job.read_record(paths[0]) == "v2"
+    with pytest.raises(FarmError, match=r"chunk\(s\) Bar.0005-0008.pc2 were baked from another"):
+        farm_job.merge(str(tmp_path), "Bar", 1, 12, POINTS, baked_from="v2")
+    os.unlink(farm_job.record_path(paths[2]))
+    with pytest.raises(FarmError, match=r"Bar.0005-0008.pc2, Bar.0009-0012.pc2 were baked"):
+        farm_job.merge(str(tmp_path), "Bar", 1, 12, POINTS, baked_from="v2")
+    assert not (tmp_path / "Bar.pc2").exists()
+    for p in paths:
+        farm_job.write_record(p, "v2")
+    farm_job.merge(str(tmp_path), "Bar", 1, 12, POINTS, baked_from="v2")
+    assert len(read_pc2(str(tmp_path / "Bar.pc2"))[2]) == 12
+    assert sorted(os.listdir(tmp_path / "chunks"))[:2] == [
+        "Bar.0001-0004.pc2",
+        "Bar.0001-0004.pc2.json",
+    ]
+
+
 @pytest.mark.parametrize(
     ("chunks", "match"),
     [

@@ -14,6 +14,7 @@ evaluate (:attr:`Motion.unsupported` says why).
 
 from __future__ import annotations
 
+import hashlib
 import math
 
 import bpy
@@ -221,6 +222,48 @@ def curves_fingerprint(obj, empty) -> tuple:
         for side in relevant_objects(obj, empty)
         for o in side
     )
+
+
+def _driver_data(d) -> tuple:
+    drv = d.driver
+    variables = tuple(
+        (v.name, v.type, tuple((t.id.name if t.id else "", t.data_path, t.transform_type,
+                                t.transform_space, t.rotation_mode) for t in v.targets))
+        for v in drv.variables
+    )  # fmt: skip
+    return (d.data_path, d.array_index, drv.type, drv.expression, variables, _curve_data(d))
+
+
+def motion_record(obj, empties) -> str:
+    """A digest of everything in the file that moves these anchor Empties relative to the mesh
+    (every object of their parent chains below the shared part: transforms, parenting,
+    constraints, F-curves of every channel, drivers), the same in every process that opens the
+    file: farm chunks baked from other versions of the animation tell themselves apart by it."""
+    h = hashlib.blake2b(digest_size=16)
+    for empty in empties:
+        for side in relevant_objects(obj, empty):
+            for o in side:
+                ad = o.animation_data
+                curves = action_fcurves(ad)
+                drivers = tuple(ad.drivers) if ad is not None else ()
+                # the values of animated channels are the current frame's: left out
+                animated = {(c.data_path, c.array_index) for c in (*curves, *drivers)}
+                static = tuple(
+                    tuple(x for i, x in enumerate(getattr(o, p)) if (p, i) not in animated)
+                    for p in ("location", "delta_location", *_PATHS)
+                )
+                h.update(repr((
+                    o.name, o.parent_type, o.rotation_mode, static,
+                    tuple(tuple(r) for r in o.matrix_parent_inverse),
+                    tuple((c.type, c.name, getattr(getattr(c, "target", None), "name", ""))
+                          for c in o.constraints),
+                    tuple((fc.data_path, fc.array_index, _muted(fc), _curve_data(fc))
+                          for fc in curves),
+                    tuple(_driver_data(d) for d in drivers),
+                )).encode())  # fmt: skip
+            h.update(b"|")
+        h.update(b"||")
+    return h.hexdigest()
 
 
 def _qangle(a, b) -> float:

@@ -35,7 +35,7 @@ from .binding import (
     unbind,
 )
 from .live import apply, compute, live_update, settle, solve_now, solve_status
-from .output import check_finite
+from .output import check_finite, settings_signature
 from .pose import has_bind_pose, owner_of, place_new_anchor, reset_empties, transforms_now
 from .state import (
     cached_entry,
@@ -86,6 +86,7 @@ __all__ = [
     "resolve_live",
     "settings",
     "settings_changed",
+    "settings_signature",
     "settle",
     "solve_now",
     "solve_status",

@@ -53,7 +53,7 @@ def _output_key(obj, entry: Entry):
     return kb
 
 
-def _settings_signature(obj) -> bytes:
+def settings_signature(obj) -> bytes:
     """The method and the values of its own settings (what a live result depends on beyond
     the bind and the matrices)."""
     method = method_of(obj)
@@ -78,7 +78,7 @@ def _record(obj, entry: Entry, mkey: bytes, settled: bool) -> str:
     the session knows whether the key already holds this pose."""
     sig = entry.extra.get("settings_sig")
     if sig is None:
-        sig = entry.extra["settings_sig"] = _settings_signature(obj)
+        sig = entry.extra["settings_sig"] = settings_signature(obj)
     digest = hashlib.blake2b(mkey + b"|" + sig, digest_size=16).hexdigest()
     return f"{digest}:{int(settled)}"
 
