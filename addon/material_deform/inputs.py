@@ -87,6 +87,9 @@ def gather(obj, scene, binding: bool = False, build: bool = True) -> Inputs:
     on this very data, which costs most of the time on large meshes)."""
     if not bridge.is_mesh(obj):
         raise BindError("Active object is not a mesh")
+    why = bridge.not_editable(obj)
+    if why:
+        raise BindError(why)
     s = settings(obj)
     method = method_of(obj)
     mesh = obj.data

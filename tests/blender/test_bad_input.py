@@ -328,3 +328,37 @@ def test_a_cap_with_corners_in_the_middle_of_its_edges_binds_without_slivers():
     assert np.isfinite(x).all()
     np.testing.assert_allclose(x[low] - r[low], [[1.0, 0.0, 0.0]] * int(low.sum()), atol=1e-5)
     np.testing.assert_allclose(x[~low & (r[:, 2] > 1.99)], r[r[:, 2] > 1.99], atol=1e-5)
+
+
+def test_linked_and_overridden_objects_are_refused_and_nothing_changes(tmp_path):
+    """A bound bar in a library file, linked into a shot: its data is read-only here, and a
+    library override keeps neither the mesh's keys nor the add-on's settings on reopen. Bind,
+    Rebind and Reset say so and change nothing; the live update leaves the linked key alone."""
+    obj = tube()
+    two_end_anchors(obj)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    empties = [a.empty for a in obj.material_deform.anchors]
+    names = ["Bar", *(e.name for e in empties)]
+    lib = tmp_path / "lib.blend"
+    bpy.data.libraries.write(str(lib), {obj, *empties}, fake_user=True)
+    bpy.ops.wm.read_homefile(use_empty=True, use_factory_startup=True)
+    with bpy.data.libraries.load(str(lib), link=True) as (_src, dst):
+        dst.objects = list(names)
+    for o in dst.objects:
+        bpy.context.scene.collection.objects.link(o)
+    linked = bpy.data.objects["Bar"]
+    assert linked.library is not None and linked.material_deform.bound
+    bpy.context.view_layer.objects.active = linked
+    before = snapshot(linked)
+    expect_error(
+        bpy.ops.object.material_deform_bind,
+        "mesh is linked from 'lib.blend'|object is linked from 'lib.blend'",
+    )
+    expect_error(bpy.ops.object.material_deform_bind, "Make it local", at_current_pose=True)
+    expect_error(bpy.ops.object.material_deform_reset, "linked from 'lib.blend'")
+    bpy.data.objects[names[1]].location.x += 1.0  # its Empty: the linked key stays as saved
+    update()
+    assert snapshot(linked) == before
+    override = linked.override_create(remap_local_usages=True)
+    bpy.context.view_layer.objects.active = override
+    expect_error(bpy.ops.object.material_deform_bind, "is a library override|linked from")

@@ -80,6 +80,25 @@ def object_names() -> list[str]:
     return [o.name for o in bpy.data.objects]
 
 
+def not_editable(obj) -> str:
+    """Why the object's bind cannot be kept in this file ('' if it can): linked from a library
+    (read-only here), or a library override, whose mesh keys and add-on settings the file does
+    not keep (they are gone on reopen)."""
+    for what, idb in (("object", obj), ("mesh", obj.data)):
+        if idb.library is not None:
+            how = f"linked from '{bpy.path.basename(idb.library.filepath)}'"
+        elif getattr(idb, "override_library", None) is not None:
+            how = "a library override"
+        else:
+            continue
+        return (
+            f"'{obj.name}': its {what} is {how}, so this file cannot keep a bind of it. Make "
+            "it local first (Object > Relations > Make Local > Selected Objects and Data), or "
+            "bind it in its library file"
+        )
+    return ""
+
+
 def mesh_sharers(obj) -> list[str]:
     """Names of the other objects that use this object's mesh (linked duplicates, Alt+D)."""
     mesh = obj.data

@@ -149,6 +149,9 @@ def bind(
 def unbind(obj) -> None:
     """Remove the output and forget the bind: the mesh is back to its rest shape bit for bit.
     Refused when another object uses the mesh: its keys would go with this object's."""
+    why = bridge.not_editable(obj)
+    if why:
+        raise BindError(why)
     shared = bridge.mesh_sharers(obj)
     if shared:
         raise BindError(shared_mesh_message(obj, shared, then="Reset"))
