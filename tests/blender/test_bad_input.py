@@ -356,6 +356,9 @@ def test_linked_and_overridden_objects_are_refused_and_nothing_changes(tmp_path)
     )
     expect_error(bpy.ops.object.material_deform_bind, "Make it local", at_current_pose=True)
     expect_error(bpy.ops.object.material_deform_reset, "linked from 'lib.blend'")
+    bake = bpy.ops.object.material_deform_bake_point_cache
+    expect_error(bake, "linked from 'lib.blend'", filepath=str(tmp_path / "x.pc2"))
+    assert not (tmp_path / "x.pc2").exists()
     bpy.data.objects[names[1]].location.x += 1.0  # its Empty: the linked key stays as saved
     update()
     assert snapshot(linked) == before
