@@ -38,14 +38,25 @@ def _keep_settling():
     return _SETTLE_INTERVAL if session.unsettled() else None
 
 
+_paint_mode_seen: dict[int, str] = {}  # object pointer -> its mode at the last check
+
+
 def _guard_paint():
     """Vertex Paint must never paint into the stiffness display (Show makes it the active
-    colour attribute so Solid > Attribute shading shows it)."""
+    colour attribute so Solid > Attribute shading shows it), and entering Weight Paint with an
+    anchor's group active paints the stiffness instead (once on entering: picking the anchor's
+    group in Weight Paint afterwards is the user's choice)."""
     obj = getattr(bpy.context, "object", None)
-    if obj is None or obj.type != "MESH" or obj.mode != "VERTEX_PAINT":
+    if obj is None or obj.type != "MESH":
         return
+    key = obj.as_pointer()
+    entered = _paint_mode_seen.get(key) != obj.mode
+    _paint_mode_seen[key] = obj.mode
     try:
-        stiffness.keep_display_out_of_paint(obj)
+        if obj.mode == "VERTEX_PAINT":
+            stiffness.keep_display_out_of_paint(obj)
+        elif obj.mode == "WEIGHT_PAINT" and entered:
+            stiffness.weight_paint_into_stiffness(obj)
     except Exception as exc:  # a handler must never take Blender down
         print(f"Material Deform: could not switch the paint layer of '{obj.name}': {exc}")
 

@@ -249,7 +249,11 @@ class MESH_OT_material_deform_add_anchor(_Operator, bpy.types.Operator):
             if not sel.any():
                 raise BindError("Select the anchor faces in Edit Mode first")
             verts, c_world, n_world, radius = bridge.selection_frame(obj, sel)
+            active = obj.vertex_groups.active  # a new group becomes the active (painted) one
+            painted = active.name if active is not None else None
             group = bridge.set_vertex_group(obj, bridge.unique_group_name(obj, "Anchor"), verts)
+            if painted is not None:
+                bridge.set_active_vertex_group(obj, painted)
             empty = bridge.create_empty(
                 context, f"{obj.name} {group}", c_world, n_world, max(radius, 0.1), obj
             )

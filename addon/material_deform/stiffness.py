@@ -220,6 +220,20 @@ def keep_display_out_of_paint(obj) -> bool:
     return True
 
 
+def weight_paint_into_stiffness(obj) -> bool:
+    """On entering Weight Paint with an anchor's vertex group active (Add Anchor makes its group
+    the active one when the mesh had none): make the stiffness group the one painted, creating
+    it if missing, so that strokes meant for the stiffness do not grow the anchor. Only with
+    the vertex-group paint source. True if it switched."""
+    s = settings(obj)
+    active = obj.vertex_groups.active
+    anchor_groups = {a.vertex_group for a in s.anchors}
+    if s.stiffness_source != "VERTEX_GROUP" or active is None or active.name not in anchor_groups:
+        return False
+    add_paint_layer(obj)
+    return True
+
+
 def add_paint_layer(obj) -> tuple[list[str], bool]:
     """Create the paint layer of the current Paint Source if it is missing (the vertex group,
     with its X / Y / Z groups when anisotropic; or the colour attribute, black = flexible) and

@@ -349,3 +349,26 @@ def test_anchor_list_operators_select_remove_assign():
     assert bpy.ops.mesh.material_deform_remove_anchor() == {"FINISHED"}
     assert len(s.anchors) == 1 and s.anchors[0].name == "Anchor.001"
     assert "Anchor" in obj.vertex_groups  # the group is kept
+
+
+def test_painting_after_add_anchor_never_paints_into_the_anchor():
+    """Add Anchor keeps the group the user was painting active; on a mesh with no group before
+    (where the anchor's group is the only, active one) entering Weight Paint paints the
+    stiffness group instead, and picking the anchor's group there afterwards is left alone."""
+    obj = tube()
+    obj.vertex_groups.new(name="Mine")
+    two_end_anchors(obj)
+    assert obj.vertex_groups.active.name == "Mine"
+    bare = tube(name="Bare")
+    activate(bare)
+    two_end_anchors(bare)
+    anchor_groups = {a.vertex_group for a in bare.material_deform.anchors}
+    assert bare.vertex_groups.active.name in anchor_groups
+    bpy.ops.object.mode_set(mode="WEIGHT_PAINT")
+    update()
+    stiffness_group = bare.material_deform.stiffness_group
+    assert bare.vertex_groups.active.name == stiffness_group
+    bare.vertex_groups.active_index = bare.vertex_groups[sorted(anchor_groups)[0]].index
+    update()
+    assert bare.vertex_groups.active.name in anchor_groups  # the user's choice
+    bpy.ops.object.mode_set(mode="OBJECT")
