@@ -112,6 +112,25 @@ def anchor_polygons(vertex_in_group, loop_vert, loop_poly, n_polys: int) -> np.n
     return (bad == 0) & (total > 0)
 
 
+def face_regions(tris) -> int:
+    """How many separate regions the triangles ``tris`` (m,3) of vertex indices make, two
+    triangles being in one region when a chain of shared vertices joins them."""
+    tris = np.asarray(tris, dtype=np.int64).reshape(-1, 3)
+    if len(tris) == 0:
+        return 0
+    verts, local = np.unique(tris, return_inverse=True)
+    label = np.arange(len(verts))
+    local = local.reshape(-1, 3)
+    while True:  # each triangle takes its corners' smallest label, until nothing changes
+        low = label[local].min(axis=1)
+        new = label.copy()
+        np.minimum.at(new, local.ravel(), np.repeat(low, 3))
+        new = new[new]  # jump along the labels: halves the remaining passes
+        if np.array_equal(new, label):
+            return len(np.unique(label))
+        label = new
+
+
 def solve_plan(modes, anchor_faces, tris):
     """How to call the solver for the given anchor modes.
 

@@ -101,3 +101,4 @@ class Entry:
     key_pointer: int = 0  # the output shape key this entry writes (renames are followed)
     state: dict = field(default_factory=dict)  # the method's per-object state (warm starts)
     extra: dict = field(default_factory=dict)  # the session's caches (pose inverses)
+    warnings: list = field(default_factory=list)  # what Bind reports beside its success

@@ -375,6 +375,8 @@ class _Bind(_ObjectOperator):
         else:
             msg = f"Bound {what}"
         self.report({"INFO"}, msg)
+        for warning in entry.warnings:
+            self.report({"WARNING"}, warning)
         return {"FINISHED"}
 
 

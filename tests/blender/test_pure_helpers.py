@@ -201,3 +201,15 @@ def test_polygons_with_collinear_corners_get_triangles_without_flat_ones():
     )
     np.testing.assert_array_equal(out[3:], tris[3:])
     assert _area(rest, out[:3]).min() > 0.1 and set(out[:3].ravel()) == {0, 1, 2, 3, 4}
+
+
+def test_face_regions_counts_the_separate_parts():
+    strip = np.array([[i, i + 1, i + 2] for i in range(40)])  # 40 triangles, one chain
+    assert am.face_regions(strip) == 1
+    assert am.face_regions(strip[::-1]) == 1  # order does not matter
+    two = np.vstack([strip, strip + 100])
+    assert am.face_regions(two) == 2
+    perm = np.random.default_rng(3).permutation(200)
+    assert am.face_regions(perm[two]) == 2  # nor vertex numbers
+    fan = np.array([[0, 1, 2], [0, 3, 4], [5, 6, 7]])  # joined at one vertex, and one apart
+    assert am.face_regions(fan) == 2 and am.face_regions(fan[:0]) == 0

@@ -372,3 +372,19 @@ def test_painting_after_add_anchor_never_paints_into_the_anchor():
     update()
     assert bare.vertex_groups.active.name in anchor_groups  # the user's choice
     bpy.ops.object.mode_set(mode="OBJECT")
+
+
+def test_bind_warns_of_an_anchor_in_separate_regions():
+    from material_deform import session
+
+    obj = tube()
+    add_anchor(obj, lambda p: abs(p.center.z) > 1.999)  # both caps: one anchor, two regions
+    add_anchor(obj, lambda p: abs(p.center.z) < 0.15)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    (warning,) = session.cached_entry(obj).warnings
+    assert warning.startswith("Anchor 'Anchor' holds 2 separate regions of faces"), warning
+    other = tube(name="Two")
+    activate(other)
+    two_end_anchors(other)
+    assert bpy.ops.object.material_deform_bind() == {"FINISHED"}
+    assert session.cached_entry(other).warnings == []

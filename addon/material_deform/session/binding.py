@@ -95,6 +95,13 @@ def bind(
     inp = gather(obj, scene, binding=True)
     progress(0.3, "Material Deform: precomputing the solver")
     entry = _build(inp, obj)
+    for anc, faces in zip(s.anchors, inp.anchor_faces, strict=True):
+        n = am.face_regions(inp.arrays.tris[faces])
+        if n > 1:  # e.g. stiffness painted into the anchor's group by mistake
+            entry.warnings.append(
+                f"Anchor '{anc.name}' holds {n} separate regions of faces, all pinned to one "
+                "Empty: if that is not meant, fix its vertex group and Rebind"
+            )
     m_obj_bind, bind_m = _bind_pose(obj, keep)
     # an anchor keeping its bind pose keeps its bind frame and its turns; the others start now
     kept = np.array([keep and has_bind_pose(a) for a in s.anchors], dtype=bool)
