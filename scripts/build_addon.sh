@@ -85,6 +85,8 @@ else
       || exit 2
   done
 fi
+# Each wheel carries every Python's core (Blender 4.2.0 installs one wheel whatever its tag).
+"$PY" scripts/share_cores.py "$BUILD"/wheels/matdeform-*.whl
 # Only a plain linux_* wheel is repaired here: a manylinux one already is, and wheels of other
 # platforms (MD_WHEEL) are bundled by their own tools (delvewheel, delocate: docs/addon.md).
 if [[ "${MD_SYSTEM_LIBS:-0}" != 1 ]] && compgen -G "$BUILD/wheels/*-linux_*.whl" >/dev/null; then
